@@ -1,6 +1,6 @@
 //! SE(2), the group of rigid motions in the plane, for 2D pose graphs.
 
-use crate::scalar::{one_minus_cos_over_sq, sinc, theta_minus_sin_over_cube};
+use crate::scalar::HalfAngle;
 use crate::so2::perp;
 use crate::{LieError, LieGroup, So2};
 use nalgebra::{Matrix2, Matrix3, SMatrix, Vector2, Vector3};
@@ -48,7 +48,8 @@ impl Se2 {
     /// translation of `exp(v, θ)`.
     #[inline]
     fn v_coefficients(theta: f64) -> (f64, f64) {
-        (sinc(theta), theta * one_minus_cos_over_sq(theta))
+        let angle = HalfAngle::new(theta);
+        (angle.sinc(), theta * angle.one_minus_cos_over_sq())
     }
 
     /// `V(θ)` as a matrix.
@@ -68,7 +69,8 @@ impl Se2 {
     /// The last column's top block of `J_l(v, θ)`:
     /// `((θ − sin θ)/θ²)·v − ((1 − cos θ)/θ²)·J·v`.
     fn left_jacobian_column(v: &Vector2<f64>, theta: f64) -> Vector2<f64> {
-        v * (theta * theta_minus_sin_over_cube(theta)) - perp(v) * one_minus_cos_over_sq(theta)
+        let angle = HalfAngle::new(theta);
+        v * (theta * angle.theta_minus_sin_over_cube()) - perp(v) * angle.one_minus_cos_over_sq()
     }
 }
 

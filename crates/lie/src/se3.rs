@@ -1,6 +1,6 @@
 //! SE(3), the group of rigid-body motions in 3D (thesis §2.4.9, app. A.1.1, A.2.1, A.3.3).
 
-use crate::scalar::{inv_left_jacobian_coeff, one_minus_cos_over_sq, theta_minus_sin_over_cube};
+use crate::scalar::HalfAngle;
 use crate::so3::validate_rotation;
 use crate::{LieError, LieGroup, So3, skew, unskew};
 use nalgebra::{Isometry3, Matrix3, Matrix4, SMatrix, Translation3, Vector3, Vector6};
@@ -93,9 +93,10 @@ impl Se3 {
     /// `V = [v]×`, `Ω = [ω]×`, `c₁ = (θ − sin θ)/θ³`, `c₂ = (θ² + 2cos θ − 2)/(2θ⁴)`,
     /// `c₃ = (2θ − 3sin θ + θcos θ)/(2θ⁵)` (Barfoot, *State Estimation for Robotics*, eq. 7.86).
     fn left_jacobian_q(v: &Vector3<f64>, omega: &Vector3<f64>) -> Matrix3<f64> {
-        let theta = omega.norm();
+        let angle = HalfAngle::new(omega.norm());
+        let theta = angle.theta;
         let t2 = theta * theta;
-        let c1 = theta_minus_sin_over_cube(theta);
+        let c1 = angle.theta_minus_sin_over_cube();
         let (c2, c3) = if t2 < 0.25 {
             // c₂ = Σ_{k≥2} (−1)ᵏ θ^{2k−4}/(2k)!,  c₃ = ½ Σ_{k≥2} (−1)ᵏ (2k−2) θ^{2k−4}/(2k+1)!.
             let mut c2 = 0.0;
@@ -111,7 +112,7 @@ impl Se3 {
             }
             (c2, c3)
         } else {
-            let (s, c) = theta.sin_cos();
+            let (s, c) = (angle.sin(), angle.cos());
             (
                 (t2 + 2.0 * c - 2.0) / (2.0 * t2 * t2),
                 (2.0 * theta - 3.0 * s + theta * c) / (2.0 * t2 * t2 * theta),
@@ -172,13 +173,13 @@ impl LieGroup<6> for Se3 {
     fn exp(tangent: &Vector6<f64>) -> Self {
         let v = Vector3::new(tangent[0], tangent[1], tangent[2]);
         let omega = Vector3::new(tangent[3], tangent[4], tangent[5]);
-        let theta = omega.norm();
+        let (rotation, angle) = So3::exp_with_angle(&omega);
         let w_v = omega.cross(&v);
         let translation = v
-            + w_v * one_minus_cos_over_sq(theta)
-            + omega.cross(&w_v) * theta_minus_sin_over_cube(theta);
+            + w_v * angle.one_minus_cos_over_sq()
+            + omega.cross(&w_v) * angle.theta_minus_sin_over_cube();
         Se3 {
-            rotation: So3::exp(&omega),
+            rotation,
             translation,
         }
     }
@@ -186,10 +187,10 @@ impl LieGroup<6> for Se3 {
     /// `(V⁻¹·t, log R)` with `V⁻¹ = I − ½[ω]× + (1 − (θ/2)cot(θ/2))/θ²·[ω]×²`.
     #[inline]
     fn log(&self) -> Vector6<f64> {
-        let (omega, theta, hcot) = self.rotation.log_with_theta();
+        let (omega, angle) = self.rotation.log_with_angle();
         let t = &self.translation;
         let w_t = omega.cross(t);
-        let v = t - w_t * 0.5 + omega.cross(&w_t) * inv_left_jacobian_coeff(theta, hcot);
+        let v = t - w_t * 0.5 + omega.cross(&w_t) * angle.inv_left_jacobian_coeff();
         Vector6::new(v.x, v.y, v.z, omega.x, omega.y, omega.z)
     }
 

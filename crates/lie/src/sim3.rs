@@ -143,11 +143,11 @@ impl LieGroup<7> for Sim3 {
         let v = Vector3::new(tangent[0], tangent[1], tangent[2]);
         let omega = Vector3::new(tangent[3], tangent[4], tangent[5]);
         let sigma = tangent[6];
-        let theta = omega.norm();
-        let (c, a, b) = sim3_w_coefficients(sigma, theta);
+        let (rotation, angle) = So3::exp_with_angle(&omega);
+        let (c, a, b) = sim3_w_coefficients(sigma, &angle);
         let w_v = omega.cross(&v);
         Sim3 {
-            rotation: So3::exp(&omega),
+            rotation,
             translation: v * c + w_v * a + omega.cross(&w_v) * b,
             scale: sigma.exp(),
         }
@@ -156,10 +156,10 @@ impl LieGroup<7> for Sim3 {
     /// `(W⁻¹·t, log R, ln s)` (thesis eq. 5.8), with the closed-form inverse of `W`.
     #[inline]
     fn log(&self) -> Vector7 {
-        let (omega, theta, _) = self.rotation.log_with_theta();
+        let (omega, angle) = self.rotation.log_with_angle();
         let sigma = self.scale.ln();
-        let (c, a, b) = sim3_w_coefficients(sigma, theta);
-        let (x, y, z) = inverse_w_coefficients(c, a, b, theta);
+        let (c, a, b) = sim3_w_coefficients(sigma, &angle);
+        let (x, y, z) = inverse_w_coefficients(c, a, b, angle.theta);
         let t = &self.translation;
         let w_t = omega.cross(t);
         let v = t * x + w_t * y + omega.cross(&w_t) * z;

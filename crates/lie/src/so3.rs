@@ -1,9 +1,6 @@
 //! SO(3), the group of rotations in 3D (thesis §2.4.3–2.4.7).
 
-use crate::scalar::{
-    half_theta_cot_half_theta, inv_left_jacobian_coeff, one_minus_cos_over_sq,
-    theta_minus_sin_over_cube,
-};
+use crate::scalar::HalfAngle;
 use crate::{LieError, LieGroup, skew, unskew};
 use nalgebra::{Matrix3, Quaternion, Rotation3, SMatrix, SVector, UnitQuaternion, Vector3};
 use std::ops::Mul;
@@ -80,9 +77,10 @@ impl So3 {
         2.0 * q.imag().norm().atan2(q.w.abs())
     }
 
-    /// `log` together with `θ` and `(θ/2)·cot(θ/2)`, which the SE(3) and Sim(3) logarithms reuse.
+    /// `log` together with the angle, whose half-angle sine and cosine are the quaternion's
+    /// parts (the SE(3) and Sim(3) logarithms reuse them).
     #[inline]
-    pub(crate) fn log_with_theta(&self) -> (Vector3<f64>, f64, f64) {
+    pub(crate) fn log_with_angle(&self) -> (Vector3<f64>, HalfAngle) {
         let q = self.quaternion.as_ref();
         // q and −q are the same rotation; choose w ≥ 0 so that θ ∈ [0, π].
         let (w, v) = if q.w < 0.0 {
@@ -93,33 +91,51 @@ impl So3 {
         let n = v.norm();
         // θ = 2·atan2(|v|, w) is accurate near 0 and near π (where w → 0).
         let theta = 2.0 * n.atan2(w);
-        if n < 1e-6 {
+        let scale = if n < 1e-6 {
             // θ/n = (2/w)·(1 − n²/(3w²) + …) for n → 0 (w ≈ 1 there).
-            let scale = 2.0 / w * (1.0 - n * n / (3.0 * w * w));
-            (v * scale, theta, 1.0 - theta * theta / 12.0)
+            2.0 / w * (1.0 - n * n / (3.0 * w * w))
         } else {
-            // (θ/2)·cot(θ/2) = (θ/2)·w/n.
-            (v * (theta / n), theta, 0.5 * theta * w / n)
-        }
+            theta / n
+        };
+        let angle = HalfAngle {
+            theta,
+            sin_half: n,
+            cos_half: w,
+        };
+        (v * scale, angle)
+    }
+
+    /// `exp(ω)` together with its angle, which the SE(3) and Sim(3) exponentials reuse.
+    #[inline]
+    pub(crate) fn exp_with_angle(omega: &Vector3<f64>) -> (So3, HalfAngle) {
+        let angle = HalfAngle::new(omega.norm());
+        // Rodrigues' formula as the quaternion (cos(θ/2), sin(θ/2)/θ·ω).
+        let f = 0.5 * angle.sinc_half();
+        let q = Quaternion::new(angle.cos_half, f * omega.x, f * omega.y, f * omega.z);
+        (
+            So3 {
+                quaternion: UnitQuaternion::new_unchecked(q),
+            },
+            angle,
+        )
     }
 
     /// `J_l(ω)` of SO(3): `I + (1 − cos θ)/θ²·[ω]× + (θ − sin θ)/θ³·[ω]×²` (thesis eq. 2.100,
     /// the same matrix as SE(3)'s `V`).
     #[inline]
     pub(crate) fn left_jacobian_matrix(omega: &Vector3<f64>) -> Matrix3<f64> {
-        let theta = omega.norm();
+        let angle = HalfAngle::new(omega.norm());
         let k = skew(omega);
         Matrix3::identity()
-            + k * one_minus_cos_over_sq(theta)
-            + k * k * theta_minus_sin_over_cube(theta)
+            + k * angle.one_minus_cos_over_sq()
+            + k * k * angle.theta_minus_sin_over_cube()
     }
 
     /// `J_l(ω)⁻¹ = I − ½[ω]× + (1 − (θ/2)cot(θ/2))/θ²·[ω]×²`.
     #[inline]
     pub(crate) fn left_jacobian_inverse_matrix(omega: &Vector3<f64>) -> Matrix3<f64> {
-        let theta = omega.norm();
         let k = skew(omega);
-        let c = inv_left_jacobian_coeff(theta, half_theta_cot_half_theta(theta));
+        let c = HalfAngle::new(omega.norm()).inv_left_jacobian_coeff();
         Matrix3::identity() - k * 0.5 + k * k * c
     }
 }
@@ -165,33 +181,14 @@ impl LieGroup<3> for So3 {
     /// Rodrigues' formula (thesis eq. 2.71) as the quaternion `(cos(θ/2), sin(θ/2)/θ·ω)`.
     #[inline]
     fn exp(omega: &SVector<f64, 3>) -> Self {
-        let t2 = omega.norm_squared();
-        let (real, imag_factor) = if t2 < 1e-8 {
-            // cos(θ/2) and sin(θ/2)/θ to O(θ⁶).
-            (
-                1.0 - t2 / 8.0 + t2 * t2 / 384.0,
-                0.5 - t2 / 48.0 + t2 * t2 / 3840.0,
-            )
-        } else {
-            let theta = t2.sqrt();
-            let half = 0.5 * theta;
-            (half.cos(), half.sin() / theta)
-        };
-        So3 {
-            quaternion: UnitQuaternion::new_unchecked(Quaternion::new(
-                real,
-                imag_factor * omega.x,
-                imag_factor * omega.y,
-                imag_factor * omega.z,
-            )),
-        }
+        So3::exp_with_angle(omega).0
     }
 
     /// `ω = θ·u` with `θ = 2·atan2(|q_v|, |q_w|) ∈ [0, π]` (equivalent to thesis eq. 2.74, but
     /// accurate near `θ = π`, where `arccos` of the trace loses half the digits).
     #[inline]
     fn log(&self) -> SVector<f64, 3> {
-        self.log_with_theta().0
+        self.log_with_angle().0
     }
 
     /// `[ω]×` (thesis eq. 2.60).

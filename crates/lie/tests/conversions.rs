@@ -162,7 +162,7 @@ fn long_chains_of_products_stay_on_the_group() {
     for i in 0..1_000_000 {
         let step = &steps[i % steps.len()];
         chain = chain.compose(step);
-        naive = naive * step.rotation().unit_quaternion();
+        naive *= step.rotation().unit_quaternion();
     }
     let norm = chain.rotation().unit_quaternion().as_ref().norm();
     assert!(
