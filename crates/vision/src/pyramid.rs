@@ -1,0 +1,204 @@
+//! Image pyramids by half-sampling, resizing and Gaussian smoothing.
+
+use crate::image::{GrayImage, Image, ImageError};
+
+/// Half-samples an 8-bit image: `out(u, v) = ⌊(I(2u,2v) + I(2u+1,2v) + I(2u,2v+1) + I(2u+1,2v+1) + 2)/4⌋`,
+/// of size `⌊w/2⌋ × ⌊h/2⌋` (the last column/row of odd-sized images is dropped).
+///
+/// A pixel centre `u` of the input lies at `u' = (u + ½)/2 − ½` in the output.
+/// Fails for images smaller than 2×2.
+pub fn half_sample(img: &GrayImage) -> Result<GrayImage, ImageError> {
+    let (w, h) = (img.width() / 2, img.height() / 2);
+    if w == 0 || h == 0 {
+        return Err(ImageError::TooSmall {
+            width: img.width(),
+            height: img.height(),
+            what: "half-sampling needs at least 2×2 pixels".into(),
+        });
+    }
+    let mut out = GrayImage::new(w, h);
+    for v in 0..h {
+        let r0 = img.row(2 * v);
+        let r1 = img.row(2 * v + 1);
+        let o = out.row_mut(v);
+        for (u, px) in o.iter_mut().enumerate() {
+            let s =
+                r0[2 * u] as u16 + r0[2 * u + 1] as u16 + r1[2 * u] as u16 + r1[2 * u + 1] as u16;
+            *px = ((s + 2) >> 2) as u8;
+        }
+    }
+    Ok(out)
+}
+
+/// An image pyramid built by repeated [`half_sample`]: level `l` has `⌊w/2ˡ⌋ × ⌊h/2ˡ⌋` pixels;
+/// a level-0 pixel coordinate `x` maps to `(x + ½)/2ˡ − ½` at level `l`.
+#[derive(Debug, Clone)]
+pub struct Pyramid {
+    /// The levels, finest (the input) first.
+    pub levels: Vec<GrayImage>,
+}
+
+impl Pyramid {
+    /// Builds up to `num_levels` levels (≥ 1), stopping early once a level would be smaller
+    /// than `min_size` pixels in either dimension. Fails for an empty input.
+    pub fn new(img: &GrayImage, num_levels: usize, min_size: usize) -> Result<Self, ImageError> {
+        if img.is_empty() {
+            return Err(ImageError::Empty {
+                path: "<pyramid input>".into(),
+                width: img.width(),
+                height: img.height(),
+            });
+        }
+        let mut levels = vec![img.clone()];
+        while levels.len() < num_levels.max(1) {
+            let last = levels.last().expect("non-empty");
+            if last.width() / 2 < min_size.max(1) || last.height() / 2 < min_size.max(1) {
+                break;
+            }
+            levels.push(half_sample(last)?);
+        }
+        Ok(Self { levels })
+    }
+
+    /// Number of levels.
+    pub fn len(&self) -> usize {
+        self.levels.len()
+    }
+
+    /// True if the pyramid has no level (never, for a constructed pyramid).
+    pub fn is_empty(&self) -> bool {
+        self.levels.is_empty()
+    }
+
+    /// Maps a level-0 coordinate to level `l`: `(x + ½)/2ˡ − ½`.
+    pub fn to_level(x: f64, l: usize) -> f64 {
+        (x + 0.5) / (1u64 << l) as f64 - 0.5
+    }
+
+    /// Maps a level-`l` coordinate to level 0: `(x + ½)·2ˡ − ½`.
+    pub fn from_level(x: f64, l: usize) -> f64 {
+        (x + 0.5) * (1u64 << l) as f64 - 0.5
+    }
+}
+
+/// Resizes with bilinear interpolation, pixel centres aligned (`x_src = (x_dst + ½)·w_src/w_dst − ½`,
+/// clamped to the image). Fails for an empty input or output size.
+pub fn resize_bilinear(
+    img: &GrayImage,
+    width: usize,
+    height: usize,
+) -> Result<GrayImage, ImageError> {
+    if img.is_empty() || width == 0 || height == 0 {
+        return Err(ImageError::TooSmall {
+            width: img.width(),
+            height: img.height(),
+            what: format!("resize to {width}×{height}"),
+        });
+    }
+    let sx = img.width() as f32 / width as f32;
+    let sy = img.height() as f32 / height as f32;
+    let max_u = (img.width() - 1) as f32;
+    let max_v = (img.height() - 1) as f32;
+    // Precompute column taps (fixed point, 8-bit weights).
+    let cols: Vec<(usize, usize, u32)> = (0..width)
+        .map(|x| {
+            let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, max_u);
+            let x0 = fx.floor() as usize;
+            let x1 = (x0 + 1).min(img.width() - 1);
+            (x0, x1, ((fx - x0 as f32) * 256.0).round() as u32)
+        })
+        .collect();
+    let mut out = GrayImage::new(width, height);
+    for y in 0..height {
+        let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, max_v);
+        let y0 = fy.floor() as usize;
+        let y1 = (y0 + 1).min(img.height() - 1);
+        let wy = ((fy - y0 as f32) * 256.0).round() as u32;
+        let (r0, r1) = (img.row(y0), img.row(y1));
+        let o = out.row_mut(y);
+        for (px, &(x0, x1, wx)) in o.iter_mut().zip(&cols) {
+            let top = r0[x0] as u32 * (256 - wx) + r0[x1] as u32 * wx;
+            let bot = r1[x0] as u32 * (256 - wx) + r1[x1] as u32 * wx;
+            *px = ((top * (256 - wy) + bot * wy + (1 << 15)) >> 16) as u8;
+        }
+    }
+    Ok(out)
+}
+
+/// Separable Gaussian blur with standard deviation `sigma` and kernel radius `⌈3σ⌉`, borders
+/// replicated. Works for any non-empty size (including 1×1).
+pub fn gaussian_blur(img: &GrayImage, sigma: f32) -> GrayImage {
+    if img.is_empty() || sigma <= 0.0 {
+        return img.clone();
+    }
+    let r = (3.0 * sigma).ceil() as i64;
+    let mut k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|x| *x /= s);
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    let mut tmp = Image::<f32>::new(img.width(), img.height());
+    for y in 0..h {
+        let row = img.row(y as usize);
+        let o = tmp.row_mut(y as usize);
+        for x in 0..w {
+            let mut acc = 0.0;
+            for (i, kv) in k.iter().enumerate() {
+                let xx = (x + i as i64 - r).clamp(0, w - 1) as usize;
+                acc += kv * row[xx] as f32;
+            }
+            o[x as usize] = acc;
+        }
+    }
+    let mut out = GrayImage::new(img.width(), img.height());
+    for y in 0..h {
+        for x in 0..w as usize {
+            let mut acc = 0.0;
+            for (i, kv) in k.iter().enumerate() {
+                let yy = (y + i as i64 - r).clamp(0, h - 1) as usize;
+                acc += kv * tmp.get(x, yy);
+            }
+            out.set(x, y as usize, (acc + 0.5).clamp(0.0, 255.0) as u8);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn half_sample_averages_and_handles_odd_sizes() {
+        let img = GrayImage::from_fn(5, 3, |u, v| (u * 10 + v) as u8);
+        let h = half_sample(&img).unwrap();
+        assert_eq!((h.width(), h.height()), (2, 1));
+        assert_eq!(h.get(0, 0), ((10 + 1 + 11 + 2) / 4) as u8);
+        assert!(half_sample(&GrayImage::new(1, 1)).is_err());
+        assert!(half_sample(&GrayImage::new(1, 7)).is_err());
+    }
+
+    #[test]
+    fn pyramid_stops_at_min_size() {
+        let img = GrayImage::from_fn(64, 40, |u, v| (u ^ v) as u8);
+        let p = Pyramid::new(&img, 10, 8).unwrap();
+        assert_eq!(p.len(), 3); // 64×40, 32×20, 16×10 (next would be 8×5 < 8)
+        let one = Pyramid::new(&GrayImage::new(1, 1), 4, 1).unwrap();
+        assert_eq!(one.len(), 1);
+        assert!(Pyramid::new(&GrayImage::new(0, 0), 4, 1).is_err());
+        assert!((Pyramid::from_level(Pyramid::to_level(10.3, 2), 2) - 10.3).abs() < 1e-12);
+    }
+
+    #[test]
+    fn resize_and_blur_keep_constants() {
+        let img = GrayImage::filled(7, 5, 100);
+        let r = resize_bilinear(&img, 3, 11).unwrap();
+        assert!(r.data().iter().all(|&p| p == 100));
+        let b = gaussian_blur(&img, 2.0);
+        assert!(b.data().iter().all(|&p| p == 100));
+        let b1 = gaussian_blur(&GrayImage::filled(1, 1, 9), 2.0);
+        assert_eq!(b1.get(0, 0), 9);
+        assert!(resize_bilinear(&img, 0, 3).is_err());
+    }
+}
