@@ -19,7 +19,7 @@
 mod error;
 // pub mod eval;
 pub mod g2o;
-// pub mod isam;
+pub mod isam;
 pub mod paths;
 mod pose_graph;
 mod text;
