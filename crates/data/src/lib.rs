@@ -17,13 +17,13 @@
 
 // pub mod bal;
 mod error;
-// pub mod eval;
+pub mod eval;
 pub mod g2o;
 pub mod isam;
 pub mod paths;
 mod pose_graph;
 mod text;
-// pub mod trajectory;
+pub mod trajectory;
 
 pub use error::{DataError, ParseErrorKind};
 pub use pose_graph::{Edge, PoseGraph, PoseGraph2, PoseGraph3, Vertex, check_information};
