@@ -15,7 +15,7 @@
 
 #![warn(missing_docs)]
 
-// pub mod bal;
+pub mod bal;
 mod error;
 pub mod eval;
 pub mod g2o;
