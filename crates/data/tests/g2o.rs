@@ -56,6 +56,41 @@ fn reads_every_real_dataset() {
     }
 }
 
+/// GTSAM 4.3.0's `graph.error(initial)` (½χ²) on every dataset, recorded by `bench/pgo/run.sh`
+/// (`gtsam_pgo.py out/pgo/NAME.init.g2o`, the file completed by the `g2o_complete` example: for
+/// files with vertices the same poses as the original). Our cost must be GTSAM's: this pins the
+/// information-matrix convention (file order = (v, ω), no quaternion rescaling) and the
+/// residual `Log(Z⁻¹·X_from⁻¹·X_to)`.
+const GTSAM_INITIAL_COST: [(&str, f64); 12] = [
+    ("sphere2500.g2o", 1305657.7118060864),
+    ("parking-garage.g2o", 8363.601948120007),
+    ("torus3D.g2o", 2400615.1744463556),
+    ("smallGrid3D.g2o", 83894.33343553313),
+    ("tinyGrid3D.g2o", 143.31787355350403),
+    ("intel.g2o", 276.99789778210055),
+    ("city10000.g2o", 359231215.6007709),
+    ("M3500.g2o", 1317356.2725119137),
+    ("manhattan.g2o", 13515460719.76823),
+    ("CSAIL.g2o", 1072150.1250268817),
+    ("MIT.g2o", 3548660355.520316),
+    ("kitti_00.g2o", 37308573.875416785),
+];
+
+#[test]
+fn initial_cost_equals_gtsams_graph_error() {
+    for (name, gtsam) in GTSAM_INITIAL_COST {
+        let Some(path) = require(Path::new("pose_graph_g2o").join(name)) else {
+            return;
+        };
+        let ours = read_g2o(&path).unwrap().graph.cost();
+        let rel = (ours - gtsam).abs() / gtsam;
+        assert!(
+            rel < 1e-12,
+            "{name}: ours {ours} vs GTSAM {gtsam} (relative {rel:e})"
+        );
+    }
+}
+
 #[test]
 fn chained_manhattan_equals_m3500_vertices() {
     // manhattan.g2o has the same measurements as M3500.g2o without vertices; M3500's vertices
