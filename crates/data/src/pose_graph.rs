@@ -222,3 +222,69 @@ impl<G: LieGroup<DOF>, const DOF: usize> PoseGraph<G, DOF> {
         0.5 * self.chi2()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix3;
+
+    fn edge(from: u64, to: u64, information: Matrix3<f64>) -> Edge<Se2, 3> {
+        Edge {
+            from,
+            to,
+            measurement: Se2::from_xy_angle(1.0, 0.0, 0.1),
+            information,
+        }
+    }
+
+    #[test]
+    fn building_a_graph_checks_everything() {
+        let mut g = PoseGraph2::new();
+        g.add_vertex(0, Se2::identity()).unwrap();
+        g.add_vertex(1, Se2::from_xy_angle(1.0, 0.0, 0.0)).unwrap();
+        assert_eq!(
+            g.add_vertex(1, Se2::identity()),
+            Err(ParseErrorKind::DuplicateVertex {
+                id: 1,
+                first_line: 0
+            })
+        );
+        assert!(matches!(
+            g.add_vertex(2, Se2::from_xy_angle(f64::NAN, 0.0, 0.0)),
+            Err(ParseErrorKind::NotFinite { .. })
+        ));
+        let mut asymmetric = Matrix3::identity();
+        asymmetric[(0, 1)] = 0.5;
+        assert!(matches!(
+            g.add_edge(edge(0, 1, asymmetric)),
+            Err(ParseErrorKind::InformationNotSymmetric { .. })
+        ));
+        assert!(matches!(
+            g.add_edge(edge(0, 1, -Matrix3::identity())),
+            Err(ParseErrorKind::InformationNotPositiveDefinite { .. })
+        ));
+        assert_eq!(
+            g.add_edge(edge(0, 5, Matrix3::identity())),
+            Err(ParseErrorKind::UnknownVertex { id: 5 })
+        );
+        assert_eq!(
+            g.add_edge(edge(1, 1, Matrix3::identity())),
+            Err(ParseErrorKind::SelfLoop { id: 1 })
+        );
+        g.add_edge(edge(0, 1, Matrix3::identity() * 2.0)).unwrap();
+        assert_eq!(g.fix(7), Err(ParseErrorKind::UnknownVertex { id: 7 }));
+        g.fix(0).unwrap();
+        g.fix(0).unwrap();
+        assert_eq!(g.fixed(), &[0]);
+        // d = log(Z⁻¹·X1) = log((1,0,0.1)⁻¹·(1,0,0)): only the angle −0.1 and a translation
+        // from rotating back; ½χ² = ½·2·|d|².
+        let d = Se2::from_xy_angle(1.0, 0.0, 0.1)
+            .inverse()
+            .compose(&Se2::from_xy_angle(1.0, 0.0, 0.0))
+            .log();
+        assert!((g.cost() - d.norm_squared()).abs() < 1e-15);
+        assert!(g.set_pose(1, Se2::from_xy_angle(1.0, 0.0, 0.1)));
+        assert!(g.cost() < 1e-30);
+        assert!(!g.set_pose(9, Se2::identity()));
+    }
+}
