@@ -4,6 +4,8 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 mod experiment;
+mod pgo;
+mod plot;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
 #[derive(Parser, Debug)]
@@ -18,11 +20,14 @@ enum Command {
     /// Reproduce an experiment of the thesis.
     #[command(subcommand)]
     Experiment(experiment::ExperimentCommand),
+    /// Pose-graph optimisation of a g2o file (SE(2), SE(3) or Sim(3)).
+    Pgo(pgo::PgoArgs),
 }
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Experiment(cmd) => experiment::run(cmd),
+        Command::Pgo(args) => pgo::run(args),
     }
 }

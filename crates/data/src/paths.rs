@@ -31,7 +31,8 @@ pub fn dataset_root() -> Option<PathBuf> {
         Some(dir) if !dir.is_empty() => PathBuf::from(dir),
         _ => workspace_root().join("..").join("shared").join("data"),
     };
-    candidate.is_dir().then_some(candidate)
+    // Canonical, so messages show `/work/shared/data/…` rather than `crates/data/../../..`.
+    candidate.canonicalize().ok().filter(|p| p.is_dir())
 }
 
 /// `relative` inside the dataset directory, if the directory and the file (or folder) exist.

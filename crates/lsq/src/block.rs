@@ -147,6 +147,55 @@ impl BlockSymmetric {
     }
 }
 
+/// Largest block size for the stack-based small-matrix routines.
+pub(crate) const MAX_BLOCK: usize = 16;
+
+/// Inverts a symmetric positive-definite `d×d` matrix (column-major, `d ≤ MAX_BLOCK`) in place
+/// by Cholesky factorisation, without heap allocation. Returns `false` if it is not positive
+/// definite.
+pub(crate) fn invert_spd_in_place(a: &mut [f64], d: usize) -> bool {
+    assert!(d <= MAX_BLOCK, "block of size {d} exceeds {MAX_BLOCK}");
+    // L (lower, column-major in l) with A = L·Lᵀ.
+    let mut l = [0.0f64; MAX_BLOCK * MAX_BLOCK];
+    for j in 0..d {
+        let mut diag = a[j * d + j];
+        for k in 0..j {
+            diag -= l[k * d + j] * l[k * d + j];
+        }
+        if !(diag > 0.0 && diag.is_finite()) {
+            return false;
+        }
+        let ljj = diag.sqrt();
+        l[j * d + j] = ljj;
+        for i in j + 1..d {
+            let mut v = a[j * d + i];
+            for k in 0..j {
+                v -= l[k * d + i] * l[k * d + j];
+            }
+            l[j * d + i] = v / ljj;
+        }
+    }
+    // A⁻¹ column by column: solve L·y = e_c, then Lᵀ·x = y.
+    for c in 0..d {
+        let mut y = [0.0f64; MAX_BLOCK];
+        for i in 0..d {
+            let mut v = if i == c { 1.0 } else { 0.0 };
+            for k in 0..i {
+                v -= l[k * d + i] * y[k];
+            }
+            y[i] = v / l[i * d + i];
+        }
+        for i in (0..d).rev() {
+            let mut v = y[i];
+            for k in i + 1..d {
+                v -= l[i * d + k] * a[c * d + k];
+            }
+            a[c * d + i] = v / l[i * d + i];
+        }
+    }
+    true
+}
+
 /// A pointer that may be shared across rayon tasks which write provably disjoint ranges.
 #[derive(Clone, Copy)]
 pub(crate) struct DisjointMut(*mut f64);
@@ -173,6 +222,24 @@ impl DisjointMut {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spd_inverse_matches_nalgebra() {
+        for d in 1..=9 {
+            let b = nalgebra::DMatrix::<f64>::from_fn(d, d, |i, j| {
+                ((i * 7 + j * 3) as f64 * 0.61).sin()
+            });
+            let m = &b * b.transpose() + nalgebra::DMatrix::identity(d, d) * 0.5;
+            let mut a = m.as_slice().to_vec();
+            assert!(invert_spd_in_place(&mut a, d));
+            let inv = m.clone().try_inverse().unwrap();
+            for (x, y) in a.iter().zip(inv.as_slice()) {
+                assert!((x - y).abs() < 1e-10 * (1.0 + y.abs()));
+            }
+        }
+        let mut indefinite = vec![1.0, 2.0, 2.0, 1.0];
+        assert!(!invert_spd_in_place(&mut indefinite, 2));
+    }
 
     #[test]
     fn pattern_lookup_multiply_and_dense_agree() {

@@ -1,6 +1,6 @@
 //! Solvers of the damped normal equations `(H + D)·δ = −g` (thesis §3.3.4–3.3.6).
 
-use crate::block::BlockSymmetric;
+use crate::block::{BlockSymmetric, invert_spd_in_place};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
@@ -234,16 +234,16 @@ pub(crate) fn invert_diagonal_blocks(
     out_offsets.clear();
     for j in 0..h.num_blocks() {
         let d = h.dims[j];
-        let mut m = nalgebra::DMatrix::from_column_slice(d, d, h.diagonal_block(j));
+        let start = out.len();
+        out_offsets.push(start);
+        out.extend_from_slice(h.diagonal_block(j));
+        let block = &mut out[start..start + d * d];
         for k in 0..d {
-            m[(k, k)] += diag_add[h.offsets[j] + k];
+            block[k * d + k] += diag_add[h.offsets[j] + k];
         }
-        let inv = m
-            .cholesky()
-            .ok_or(LinearError::NotPositiveDefinite)?
-            .inverse();
-        out_offsets.push(out.len());
-        out.extend_from_slice(inv.as_slice());
+        if !invert_spd_in_place(block, d) {
+            return Err(LinearError::NotPositiveDefinite);
+        }
     }
     Ok(())
 }
@@ -253,6 +253,7 @@ pub(crate) fn invert_diagonal_blocks(
 pub(crate) struct Pcg {
     pub(crate) max_iterations: usize,
     pub(crate) tolerance: f64,
+    b: Vec<f64>,
     preconditioner: Vec<f64>,
     preconditioner_offsets: Vec<usize>,
     r: Vec<f64>,
@@ -266,6 +267,7 @@ impl Pcg {
         Pcg {
             max_iterations,
             tolerance,
+            b: Vec::new(),
             preconditioner: Vec::new(),
             preconditioner_offsets: Vec::new(),
             r: Vec::new(),
@@ -366,7 +368,8 @@ impl LinearSolve for Pcg {
             &mut self.preconditioner,
             &mut self.preconditioner_offsets,
         )?;
-        let b: Vec<f64> = g.iter().map(|x| -x).collect();
+        self.b.clear();
+        self.b.extend(g.iter().map(|x| -x));
         let (pre, pre_off) = (&self.preconditioner, &self.preconditioner_offsets);
         let iterations = conjugate_gradients(
             |x, y| {
@@ -376,7 +379,7 @@ impl LinearSolve for Pcg {
                 }
             },
             |r, z| apply_block_diagonal(h, pre, pre_off, r, z),
-            &b,
+            &self.b,
             delta,
             &mut self.r,
             &mut self.z,

@@ -542,11 +542,8 @@ impl Problem {
                     }
                 }
             });
-        // Sums in fixed chunks, added in order: the same bits whatever the thread count.
-        let deterministic_sum = |v: &[f64]| -> f64 {
-            let partial: Vec<f64> = v.par_chunks(4096).map(|c| c.iter().sum::<f64>()).collect();
-            partial.iter().sum()
-        };
+        // Sequential sums: the same bits whatever the thread count, and no allocation.
+        let deterministic_sum = |v: &[f64]| -> f64 { v.iter().sum() };
         let cost = 0.5 * deterministic_sum(&ws.rho);
         let chi2 = deterministic_sum(&ws.chi2);
         let invalid = ws.valid.iter().filter(|v| !**v).count();

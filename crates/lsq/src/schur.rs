@@ -7,7 +7,7 @@
 //! (explicit Schur) or by conjugate gradients without forming it (implicit Schur).
 //! Blocks `0..num_reduced` are kept, `num_reduced..` eliminated.
 
-use crate::block::{BlockSymmetric, DisjointMut};
+use crate::block::{BlockSymmetric, DisjointMut, invert_spd_in_place};
 use crate::linear::{
     LinearError, LinearSolve, SparseCholesky, apply_block_diagonal, conjugate_gradients,
 };
@@ -90,20 +90,18 @@ impl Elimination {
             .try_for_each(|b| {
                 let d = h.dims[b];
                 let o = h.offsets[b];
-                let mut m = nalgebra::DMatrix::from_column_slice(d, d, h.diagonal_block(b));
-                for k in 0..d {
-                    m[(k, k)] += diag_add[o + k];
-                }
-                let inv = m
-                    .cholesky()
-                    .ok_or(LinearError::NotPositiveDefinite)?
-                    .inverse();
                 // SAFETY: point b owns hpp_inv[offsets[b − nr]..+d²] and w[o − reduced_dim..+d].
-                let dst = unsafe { inv_ptr.slice(offsets[b - nr], d * d) };
-                dst.copy_from_slice(inv.as_slice());
+                let inv = unsafe { inv_ptr.slice(offsets[b - nr], d * d) };
+                inv.copy_from_slice(h.diagonal_block(b));
+                for k in 0..d {
+                    inv[k * d + k] += diag_add[o + k];
+                }
+                if !invert_spd_in_place(inv, d) {
+                    return Err(LinearError::NotPositiveDefinite);
+                }
                 let w = unsafe { w_ptr.slice(o - reduced_dim, d) };
                 for r in 0..d {
-                    w[r] = (0..d).map(|c| inv[(r, c)] * g[o + c]).sum();
+                    w[r] = (0..d).map(|c| inv[c * d + r] * g[o + c]).sum();
                 }
                 Ok(())
             })
@@ -365,6 +363,7 @@ pub(crate) struct SchurPcg {
     preconditioner: Vec<f64>,
     preconditioner_offsets: Vec<usize>,
     reduced: BlockSymmetric,
+    zeros: Vec<f64>,
     t: Vec<f64>,
     rhs: Vec<f64>,
     x: Vec<f64>,
@@ -395,6 +394,7 @@ impl SchurPcg {
             tolerance,
             preconditioner: Vec::new(),
             preconditioner_offsets: Vec::new(),
+            zeros: vec![0.0; h.offsets[num_reduced]],
             reduced,
             r: Vec::new(),
             z: Vec::new(),
@@ -539,10 +539,9 @@ impl LinearSolve for SchurPcg {
                 }
             });
         }
-        let zeros = vec![0.0; self.reduced.dim()];
         crate::linear::invert_diagonal_blocks(
             &self.reduced,
-            &zeros,
+            &self.zeros,
             &mut self.preconditioner,
             &mut self.preconditioner_offsets,
         )?;

@@ -58,6 +58,9 @@ pub struct SolverOptions {
     pub max_iterations: usize,
     /// Stop when an accepted step reduces the cost by less than this fraction.
     pub function_tolerance: f64,
+    /// Stop when an accepted step reduces the cost by less than this amount (GTSAM's
+    /// `absoluteErrorTol`; 0 disables it).
+    pub absolute_function_tolerance: f64,
     /// Stop when `max |g| ≤ gradient_tolerance`.
     pub gradient_tolerance: f64,
     /// Stop when `‖δ‖ ≤ parameter_tolerance`.
@@ -66,6 +69,9 @@ pub struct SolverOptions {
     pub max_time: Option<Duration>,
     /// The initial damping `λ` of Levenberg-Marquardt.
     pub initial_lambda: f64,
+    /// After a step with gain ratio `ρ`, `λ ← λ·max(c, 1 − (2ρ − 1)³)` (Nielsen's rule with
+    /// this floor `c`): how fast damping may fall after steps the quadratic model predicted well.
+    pub lambda_decrease_floor: f64,
     /// Worker threads (`None`: rayon's global pool).
     pub threads: Option<usize>,
     /// Maximum conjugate-gradient iterations per solve.
@@ -82,10 +88,12 @@ impl Default for SolverOptions {
             damping: Damping::Marquardt,
             max_iterations: 100,
             function_tolerance: 1e-6,
+            absolute_function_tolerance: 0.0,
             gradient_tolerance: 1e-10,
             parameter_tolerance: 1e-10,
             max_time: None,
             initial_lambda: 1e-4,
+            lambda_decrease_floor: 1.0 / 3.0,
             threads: None,
             pcg_max_iterations: 500,
             pcg_tolerance: 1e-6,
@@ -283,7 +291,8 @@ impl Problem {
             final_cost: initial.cost,
             initial_chi2: initial.chi2,
             final_chi2: initial.chi2,
-            iterations: Vec::new(),
+            // Reserved up front so that the iteration loop allocates nothing.
+            iterations: Vec::with_capacity(options.max_iterations.min(100_000)),
             termination: Termination::MaxIterations,
             time_structure,
             time_total: Duration::ZERO,
@@ -416,7 +425,7 @@ impl Problem {
                 current = candidate;
                 needs_assembly = true;
                 if lm {
-                    lambda *= (1.0 - (2.0 * gain - 1.0).powi(3)).max(1.0 / 3.0);
+                    lambda *= (1.0 - (2.0 * gain - 1.0).powi(3)).max(options.lambda_decrease_floor);
                     nu = 2.0;
                 }
                 stats.accepted = true;
@@ -426,7 +435,9 @@ impl Problem {
                 stats.time_linearize = std::mem::take(&mut time_linearize);
                 on_iteration(&stats);
                 summary.iterations.push(stats);
-                if relative.abs() < options.function_tolerance {
+                if relative.abs() < options.function_tolerance
+                    || actual.abs() < options.absolute_function_tolerance
+                {
                     summary.termination = Termination::FunctionTolerance;
                     break;
                 }

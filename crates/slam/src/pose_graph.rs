@@ -177,3 +177,119 @@ mod tests {
         assert!((ours - gtsam).amax() < 1e-12);
     }
 }
+
+/// A pose-graph optimisation problem over group `G`, built from absolute poses and relative
+/// constraints in the thesis's convention.
+pub struct PoseGraphProblem<G, const D: usize> {
+    /// The least-squares problem.
+    pub problem: lsq::Problem,
+    /// The pose variables `T_i = camera_from_world`, in input order.
+    pub poses: Vec<Var<G>>,
+}
+
+/// A relative constraint for [`PoseGraphProblem::new`]: poses `i` and `j` (indices into the
+/// pose list), the measured `T_ji`, and the information matrix over the residual's tangent.
+#[derive(Clone, Debug)]
+pub struct Constraint<G, const D: usize> {
+    /// Index of `T_i`.
+    pub i: usize,
+    /// Index of `T_j`.
+    pub j: usize,
+    /// The measured `T_ji`.
+    pub measured: G,
+    /// `Λ` over `d = log(T_ji·T_i·T_j⁻¹)`.
+    pub information: SMatrix<f64, D, D>,
+}
+
+/// Why a pose graph could not be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PoseGraphError {
+    /// A constraint names a pose that does not exist.
+    #[error("constraint {constraint} refers to pose {pose}, but there are only {count} poses")]
+    UnknownPose {
+        /// Index of the constraint.
+        constraint: usize,
+        /// The missing pose index.
+        pose: usize,
+        /// Number of poses.
+        count: usize,
+    },
+    /// The problem refused a factor.
+    #[error("constraint {constraint}: {source}")]
+    Factor {
+        /// Index of the constraint.
+        constraint: usize,
+        /// Why.
+        source: lsq::ProblemError,
+    },
+}
+
+impl<G: LieGroup<D> + Manifold, const D: usize> PoseGraphProblem<G, D> {
+    /// Builds the problem: one variable per pose (initial `camera_from_world`), one
+    /// [`BetweenFactor`] per constraint with the given Jacobian method, and the listed poses
+    /// fixed (none: the gauge is left to the damping, thesis §6.2.3).
+    pub fn new(
+        camera_from_world: &[G],
+        constraints: &[Constraint<G, D>],
+        fixed: &[usize],
+        jacobian: LogJacobian,
+    ) -> Result<Self, PoseGraphError> {
+        let mut problem = lsq::Problem::new();
+        let poses: Vec<Var<G>> = camera_from_world
+            .iter()
+            .map(|t| problem.add_variable(*t))
+            .collect();
+        for (k, c) in constraints.iter().enumerate() {
+            for pose in [c.i, c.j] {
+                if pose >= poses.len() {
+                    return Err(PoseGraphError::UnknownPose {
+                        constraint: k,
+                        pose,
+                        count: poses.len(),
+                    });
+                }
+            }
+            let info = lsq::Information::Full(nalgebra::DMatrix::from_column_slice(
+                D,
+                D,
+                c.information.as_slice(),
+            ));
+            problem
+                .add_factor(
+                    BetweenFactor {
+                        from: poses[c.i],
+                        to: poses[c.j],
+                        measured: c.measured,
+                        jacobian,
+                    },
+                    info,
+                    None,
+                )
+                .map_err(|source| PoseGraphError::Factor {
+                    constraint: k,
+                    source,
+                })?;
+        }
+        for &f in fixed {
+            if let Some(v) = poses.get(f) {
+                problem.set_fixed(v.key(), true);
+            }
+        }
+        Ok(PoseGraphProblem { problem, poses })
+    }
+
+    /// The current `camera_from_world` poses, in input order.
+    pub fn camera_from_world(&self) -> Vec<G> {
+        self.poses.iter().map(|v| *self.problem.value(*v)).collect()
+    }
+}
+
+/// The rigid pose with the same camera centre and orientation as a similarity
+/// `camera_from_world` `x_c = s·R·x_w + t`: `(R, t/s)`. Used to return from a Sim(3) pose graph
+/// to rigid poses in the corrected (rescaled) world (thesis §5.3.2).
+pub fn rigid_from_similarity(camera_from_world: &lie::Sim3) -> lie::Se3 {
+    lie::Se3::new(
+        *camera_from_world.rotation(),
+        camera_from_world.translation() / camera_from_world.scale(),
+    )
+}
