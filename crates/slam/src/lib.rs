@@ -4,4 +4,5 @@
 
 #![warn(missing_docs)]
 
+pub mod ba;
 pub mod pose_graph;

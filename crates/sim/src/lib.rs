@@ -1,0 +1,6 @@
+//! `sim`: synthetic worlds, camera trajectories and measurements with perfect data association,
+//! seeded and deterministic, and the thesis's simulated experiments.
+
+#![warn(missing_docs)]
+
+pub mod ba_scene;
