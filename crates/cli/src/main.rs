@@ -3,6 +3,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
+mod ba;
 mod experiment;
 mod pgo;
 mod plot;
@@ -22,6 +23,8 @@ enum Command {
     Experiment(experiment::ExperimentCommand),
     /// Pose-graph optimisation of a g2o file (SE(2), SE(3) or Sim(3)).
     Pgo(pgo::PgoArgs),
+    /// Bundle adjustment of a BAL problem or a synthetic scene.
+    Ba(ba::BaArgs),
 }
 
 fn main() -> Result<()> {
@@ -29,5 +32,6 @@ fn main() -> Result<()> {
     match cli.command {
         Command::Experiment(cmd) => experiment::run(cmd),
         Command::Pgo(args) => pgo::run(args),
+        Command::Ba(args) => ba::run(args),
     }
 }

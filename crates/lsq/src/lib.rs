@@ -25,6 +25,7 @@
 
 mod block;
 mod factor;
+mod kernels;
 mod linear;
 mod manifold;
 pub mod numeric;

@@ -3,6 +3,7 @@
 
 use crate::block::{BlockSymmetric, DisjointMut};
 use crate::factor::{Factor, Information, InformationError, Jacobians, MAX_ARITY, Whitening};
+use crate::kernels;
 use crate::manifold::Manifold;
 use crate::robust::RobustKernel;
 use crate::values::{Values, Var, VarKey};
@@ -60,12 +61,21 @@ pub(crate) struct FactorRecord {
     pub(crate) kernel: Option<RobustKernel>,
 }
 
-/// One contribution `J̃_{f,a}ᵀ·J̃_{f,b}` to a Hessian block.
+/// One contribution `J̃_{f,a}ᵀ·J̃_{f,b}` to a Hessian block: where the two Jacobian blocks
+/// start in the Jacobian buffer, and the factor's residual size.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Contribution {
-    pub(crate) factor: u32,
-    pub(crate) a: u8,
-    pub(crate) b: u8,
+    pub(crate) ja: usize,
+    pub(crate) jb: usize,
+    pub(crate) rows: u32,
+}
+
+/// One contribution `J̃_{f,a}ᵀ·r̃_f` to a gradient block.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct GradientContribution {
+    pub(crate) j: usize,
+    pub(crate) r: usize,
+    pub(crate) rows: u32,
 }
 
 /// The ordering of the free variables and the sparsity of the normal equations, computed
@@ -92,7 +102,7 @@ pub(crate) struct Structure {
     pub(crate) h_contrib: Vec<Contribution>,
     /// Contributions `(factor, variable slot)` to each gradient block.
     pub(crate) g_contrib_ptr: Vec<usize>,
-    pub(crate) g_contrib: Vec<(u32, u8)>,
+    pub(crate) g_contrib: Vec<GradientContribution>,
 }
 
 /// Per-structure buffers, allocated once and reused at every iteration.
@@ -407,12 +417,13 @@ impl Problem {
                         .find(blocks[b] as usize, blocks[a] as usize)
                         .expect("pattern holds every factor pair");
                     h_count[s + 1] += 1;
+                    // Row block blocks[b], column block blocks[a]: H_ij += J_bᵀ·J_a.
                     h_entries.push((
                         s,
                         Contribution {
-                            factor: f as u32,
-                            a: b as u8,
-                            b: a as u8,
+                            ja: jacobian_offsets[f] + jacobian_block_offsets[f][b] as usize,
+                            jb: jacobian_offsets[f] + jacobian_block_offsets[f][a] as usize,
+                            rows: self.factors[f].dim as u32,
                         },
                     ));
                 }
@@ -425,9 +436,9 @@ impl Problem {
         let mut fill = h_count;
         let mut h_contrib = vec![
             Contribution {
-                factor: 0,
-                a: 0,
-                b: 0
+                ja: 0,
+                jb: 0,
+                rows: 0
             };
             h_entries.len()
         ];
@@ -440,12 +451,23 @@ impl Problem {
         }
         let g_contrib_ptr = g_count.clone();
         let mut gfill = g_count;
-        let mut g_contrib = vec![(0u32, 0u8); *g_contrib_ptr.last().unwrap_or(&0)];
+        let mut g_contrib = vec![
+            GradientContribution {
+                j: 0,
+                r: 0,
+                rows: 0
+            };
+            *g_contrib_ptr.last().unwrap_or(&0)
+        ];
         for (f, blocks) in factor_blocks.iter().enumerate() {
             for a in 0..self.factors[f].arity {
                 if blocks[a] != NONE {
                     let i = blocks[a] as usize;
-                    g_contrib[gfill[i]] = (f as u32, a as u8);
+                    g_contrib[gfill[i]] = GradientContribution {
+                        j: jacobian_offsets[f] + jacobian_block_offsets[f][a] as usize,
+                        r: residual_offsets[f],
+                        rows: self.factors[f].dim as u32,
+                    };
                     gfill[i] += 1;
                 }
             }
@@ -559,17 +581,10 @@ impl Problem {
     pub(crate) fn assemble(&mut self) {
         let s = self.structure.as_mut().expect("structure built");
         let ws = self.workspace.as_mut().expect("workspace built");
-        let factors = &self.factors;
-        let values = &self.values;
         let h = &mut s.hessian;
         let jac = &ws.jacobians;
         let res = &ws.residuals;
-        let (jac_offsets, jbo) = (&s.jacobian_offsets, &s.jacobian_block_offsets);
         let (h_ptr, h_contrib) = (&s.h_contrib_ptr, &s.h_contrib);
-        let block_of_var = |f: usize, k: usize| -> (usize, usize) {
-            let rec = &factors[f];
-            (jac_offsets[f] + jbo[f][k] as usize, values.dim(rec.vars[k]))
-        };
         let val_ptr = DisjointMut::new(&mut h.values);
         let (col_ptr, rows, value_offsets, dims) = (&h.col_ptr, &h.rows, &h.value_offsets, &h.dims);
         let total = h.values.len();
@@ -590,50 +605,32 @@ impl Problem {
                 let block = &mut col_vals[o..o + di * dj];
                 block.iter_mut().for_each(|x| *x = 0.0);
                 for c in &h_contrib[h_ptr[s_idx]..h_ptr[s_idx + 1]] {
-                    let f = c.factor as usize;
-                    let rows_r = factors[f].dim;
-                    let (oa, da) = block_of_var(f, c.a as usize);
-                    let (ob, db) = block_of_var(f, c.b as usize);
-                    debug_assert_eq!((da, db), (di, dj));
-                    let ja = &jac[oa..oa + rows_r * da];
-                    let jb = &jac[ob..ob + rows_r * db];
-                    for cc in 0..dj {
-                        let colb = &jb[cc * rows_r..(cc + 1) * rows_r];
-                        for rr in 0..di {
-                            let cola = &ja[rr * rows_r..(rr + 1) * rows_r];
-                            let mut acc = 0.0;
-                            for t in 0..rows_r {
-                                acc += cola[t] * colb[t];
-                            }
-                            block[cc * di + rr] += acc;
-                        }
-                    }
+                    let r = c.rows as usize;
+                    kernels::add_at_b(
+                        block,
+                        &jac[c.ja..c.ja + r * di],
+                        &jac[c.jb..c.jb + r * dj],
+                        r,
+                        di,
+                        dj,
+                        1.0,
+                    );
                 }
             }
         });
         let offsets = &h.offsets;
         let g_ptr = DisjointMut::new(&mut ws.gradient);
         let (gp, gc) = (&s.g_contrib_ptr, &s.g_contrib);
-        let res_offsets = &s.residual_offsets;
-        (0..dims.len())
-            .into_par_iter()
-            .with_min_len(64)
-            .for_each(|i| {
-                let di = dims[i];
-                // SAFETY: block i owns gradient[offsets[i]..offsets[i]+di].
-                let g = unsafe { g_ptr.slice(offsets[i], di) };
-                g.iter_mut().for_each(|x| *x = 0.0);
-                for &(f, k) in &gc[gp[i]..gp[i + 1]] {
-                    let f = f as usize;
-                    let rows_r = factors[f].dim;
-                    let (o, d) = block_of_var(f, k as usize);
-                    let r = &res[res_offsets[f]..res_offsets[f] + rows_r];
-                    for c in 0..d {
-                        let col = &jac[o + c * rows_r..o + (c + 1) * rows_r];
-                        g[c] += col.iter().zip(r).map(|(a, b)| a * b).sum::<f64>();
-                    }
-                }
-            });
+        (0..nb).into_par_iter().with_min_len(64).for_each(|i| {
+            let di = dims[i];
+            // SAFETY: block i owns gradient[offsets[i]..offsets[i]+di].
+            let g = unsafe { g_ptr.slice(offsets[i], di) };
+            g.iter_mut().for_each(|x| *x = 0.0);
+            for c in &gc[gp[i]..gp[i + 1]] {
+                let r = c.rows as usize;
+                kernels::add_at_x(g, &jac[c.j..c.j + r * di], &res[c.r..c.r + r], r, di, 1.0);
+            }
+        });
     }
 
     /// Clears the elimination marks (returning them), e.g. to take covariances on the full

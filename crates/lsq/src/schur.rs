@@ -8,6 +8,7 @@
 //! Blocks `0..num_reduced` are kept, `num_reduced..` eliminated.
 
 use crate::block::{BlockSymmetric, DisjointMut, invert_spd_in_place};
+use crate::kernels;
 use crate::linear::{
     LinearError, LinearSolve, SparseCholesky, apply_block_diagonal, conjugate_gradients,
 };
@@ -127,9 +128,7 @@ impl Elimination {
                 let dp = h.dims[p];
                 let b = &h.values[h.value_offsets[s]..h.value_offsets[s] + dp * dc];
                 let w = &self.w[h.offsets[p] - reduced_dim..h.offsets[p] - reduced_dim + dp];
-                for k in 0..dc {
-                    out[k] += (0..dp).map(|r| b[k * dp + r] * w[r]).sum::<f64>();
-                }
+                kernels::add_at_x(out, b, w, dp, dc, 1.0);
             }
         });
     }
@@ -152,20 +151,16 @@ impl Elimination {
                     let c = c as usize;
                     let (oc, dc) = (h.offsets[c], h.dims[c]);
                     let blk = &h.values[h.value_offsets[s]..h.value_offsets[s] + d * dc];
-                    for k in 0..dc {
-                        let x = reduced[oc + k];
-                        for r in 0..d {
-                            t[r] += blk[k * d + r] * x;
-                        }
-                    }
+                    kernels::add_a_x(t, blk, &reduced[oc..oc + dc], d, dc, 1.0);
                 }
                 let inv = &self.hpp_inv
                     [self.hpp_inv_offsets[b - nr]..self.hpp_inv_offsets[b - nr] + d * d];
                 // SAFETY: point b owns delta_p[o..o+d].
                 let out = unsafe { e_ptr.slice(o, d) };
                 for r in 0..d {
-                    out[r] = -self.w[o + r] - (0..d).map(|k| inv[k * d + r] * t[k]).sum::<f64>();
+                    out[r] = -self.w[o + r];
                 }
+                kernels::add_a_x(out, inv, t, d, d, -1.0);
             });
     }
 }
@@ -283,12 +278,7 @@ impl LinearSolve for SchurCholesky {
                         let src = &h.values[o..o + dp * dc];
                         // SAFETY: the block (p, c) of H belongs to point p alone.
                         let dst = unsafe { e_ptr.slice(o, dp * dc) };
-                        for k in 0..dc {
-                            for r in 0..dp {
-                                dst[k * dp + r] =
-                                    (0..dp).map(|t| inv[t * dp + r] * src[k * dp + t]).sum();
-                            }
-                        }
+                        kernels::square_times(dst, inv, src, dp, dc);
                     }
                 });
         }
@@ -331,14 +321,7 @@ impl LinearSolve for SchurCholesky {
                         let dp = h.dims[h.rows[s1] as usize];
                         let a = &h.values[h.value_offsets[s1]..h.value_offsets[s1] + dp * di];
                         let b = &e[h.value_offsets[s2]..h.value_offsets[s2] + dp * dj];
-                        for cc in 0..dj {
-                            let bc = &b[cc * dp..(cc + 1) * dp];
-                            for rr in 0..di {
-                                let ac = &a[rr * dp..(rr + 1) * dp];
-                                block[cc * di + rr] -=
-                                    ac.iter().zip(bc).map(|(x, y)| x * y).sum::<f64>();
-                            }
-                        }
+                        kernels::add_at_b(block, a, b, dp, di, dj, -1.0);
                     }
                 }
             });
@@ -364,7 +347,8 @@ pub(crate) struct SchurPcg {
     preconditioner_offsets: Vec<usize>,
     reduced: BlockSymmetric,
     zeros: Vec<f64>,
-    t: Vec<f64>,
+    /// Per-chunk accumulators of the implicit product (reduced dimension each).
+    partial: Vec<Vec<f64>>,
     rhs: Vec<f64>,
     x: Vec<f64>,
     r: Vec<f64>,
@@ -386,7 +370,7 @@ impl SchurPcg {
             vec![Vec::new(); num_reduced],
         );
         SchurPcg {
-            t: vec![0.0; h.dim() - h.offsets[num_reduced]],
+            partial: vec![vec![0.0; h.offsets[num_reduced]]; PRODUCT_CHUNKS],
             rhs: vec![0.0; h.offsets[num_reduced]],
             x: vec![0.0; h.offsets[num_reduced]],
             elim,
@@ -404,89 +388,71 @@ impl SchurPcg {
     }
 }
 
-/// `y = (H_cc + D_c)·x − H_cp·H_pp⁻¹·(H_pc·x)`.
+/// Number of point chunks of the implicit Schur product: fixed, so that the order of the
+/// floating-point sums (and so the result) does not depend on the thread count.
+const PRODUCT_CHUNKS: usize = 16;
+
+/// `y = (H_cc + D_c)·x − H_cp·H_pp⁻¹·(H_pc·x)` in one pass over the points: each of
+/// [`PRODUCT_CHUNKS`] chunks of points gathers `t_p = H_pp⁻¹·Σ_c H_pc·x_c` and scatters
+/// `−H_pcᵀ·t_p` into its own buffer over the (small) reduced system; the buffers are added in
+/// order.
 fn schur_product(
     elim: &Elimination,
     h: &BlockSymmetric,
     diag_add: &[f64],
     x: &[f64],
-    t: &mut [f64],
+    partial: &mut [Vec<f64>],
     y: &mut [f64],
 ) {
     let nr = elim.num_reduced;
-    let reduced_dim = h.offsets[nr];
-    // t_p = H_pp⁻¹·Σ_c H_pc·x_c, parallel over points.
-    let t_ptr = DisjointMut::new(t);
-    (nr..h.num_blocks())
-        .into_par_iter()
-        .with_min_len(256)
-        .for_each(|b| {
-            let (o, d) = (h.offsets[b] - reduced_dim, h.dims[b]);
+    let np = h.num_blocks() - nr;
+    let chunks = partial.len();
+    partial.par_iter_mut().enumerate().for_each(|(k, buf)| {
+        buf.iter_mut().for_each(|v| *v = 0.0);
+        let (first, last) = (nr + k * np / chunks, nr + (k + 1) * np / chunks);
+        for b in first..last {
+            let d = h.dims[b];
             let mut acc = [0.0f64; 16];
-            for &(c, s) in &elim.obs[elim.obs_ptr[b - nr]..elim.obs_ptr[b - nr + 1]] {
+            let obs = &elim.obs[elim.obs_ptr[b - nr]..elim.obs_ptr[b - nr + 1]];
+            for &(c, s) in obs {
                 let (oc, dc) = (h.offsets[c as usize], h.dims[c as usize]);
                 let blk = &h.values[h.value_offsets[s]..h.value_offsets[s] + d * dc];
-                for k in 0..dc {
-                    let xv = x[oc + k];
-                    for r in 0..d {
-                        acc[r] += blk[k * d + r] * xv;
-                    }
-                }
+                kernels::add_a_x(&mut acc[..d], blk, &x[oc..oc + dc], d, dc, 1.0);
             }
             let inv =
                 &elim.hpp_inv[elim.hpp_inv_offsets[b - nr]..elim.hpp_inv_offsets[b - nr] + d * d];
-            // SAFETY: point b owns t[o..o+d].
-            let out = unsafe { t_ptr.slice(o, d) };
-            for r in 0..d {
-                out[r] = (0..d).map(|k| inv[k * d + r] * acc[k]).sum();
-            }
-        });
-    let t: &[f64] = t;
-    // y_c = D_c·x_c + Σ_{i ≥ c} H_icᵀ·x_i − Σ_p H_pcᵀ·t_p from block column c, parallel over
-    // kept blocks; the upper-triangle terms H_ci·x_i (i < c) follow below.
-    let y_ptr = DisjointMut::new(y);
-    (0..nr).into_par_iter().with_min_len(16).for_each(|c| {
-        let (oc, dc) = (h.offsets[c], h.dims[c]);
-        // SAFETY: block c owns y[oc..oc+dc].
-        let out = unsafe { y_ptr.slice(oc, dc) };
-        for k in 0..dc {
-            out[k] = diag_add[oc + k] * x[oc + k];
-        }
-        for s in h.col_ptr[c]..h.col_ptr[c + 1] {
-            let i = h.rows[s] as usize;
-            let di = h.dims[i];
-            let blk = &h.values[h.value_offsets[s]..h.value_offsets[s] + di * dc];
-            if i < nr {
-                // Block (i, c): contributes H_icᵀ·x_i to y_c (and, for i = c, the diagonal).
-                let oi = h.offsets[i];
-                for k in 0..dc {
-                    out[k] += (0..di).map(|r| blk[k * di + r] * x[oi + r]).sum::<f64>();
-                }
-            } else {
-                let op = h.offsets[i] - reduced_dim;
-                for k in 0..dc {
-                    out[k] -= (0..di).map(|r| blk[k * di + r] * t[op + r]).sum::<f64>();
-                }
+            let mut t = [0.0f64; 16];
+            kernels::add_a_x(&mut t[..d], inv, &acc[..d], d, d, 1.0);
+            for &(c, s) in obs {
+                let (oc, dc) = (h.offsets[c as usize], h.dims[c as usize]);
+                let blk = &h.values[h.value_offsets[s]..h.value_offsets[s] + d * dc];
+                kernels::add_at_x(&mut buf[oc..oc + dc], blk, &t[..d], d, dc, -1.0);
             }
         }
     });
-    // The upper-triangle part of H_cc: y_i += H_ic·x_c for stored (i, c), i > c, i < nr.
-    // Done sequentially per column to avoid write conflicts.
+    // (H_cc + D_c)·x from the kept blocks (both triangles), then the chunk sums in order.
+    for (yi, (di, xi)) in y.iter_mut().zip(diag_add.iter().zip(x)) {
+        *yi = di * xi;
+    }
     for c in 0..nr {
         let (oc, dc) = (h.offsets[c], h.dims[c]);
-        for s in h.col_ptr[c] + 1..h.col_ptr[c + 1] {
+        for s in h.col_ptr[c]..h.col_ptr[c + 1] {
             let i = h.rows[s] as usize;
             if i >= nr {
                 continue;
             }
             let (oi, di) = (h.offsets[i], h.dims[i]);
             let blk = &h.values[h.value_offsets[s]..h.value_offsets[s] + di * dc];
-            for k in 0..dc {
-                let xv = x[oc + k];
-                for r in 0..di {
-                    y[oi + r] += blk[k * di + r] * xv;
-                }
+            // Block (i, c): y_c += H_icᵀ·x_i, and for i ≠ c also y_i += H_ic·x_c.
+            kernels::add_at_x(&mut y[oc..oc + dc], blk, &x[oi..oi + di], di, dc, 1.0);
+            if i != c {
+                kernels::add_a_x(&mut y[oi..oi + di], blk, &x[oc..oc + dc], di, dc, 1.0);
             }
+        }
+    }
+    for buf in partial.iter() {
+        for (yi, v) in y.iter_mut().zip(buf) {
+            *yi += v;
         }
     }
 }
@@ -525,17 +491,10 @@ impl LinearSolve for SchurPcg {
                     let hpc = &h.values[h.value_offsets[s]..h.value_offsets[s] + dp * dc];
                     let inv = &elim.hpp_inv
                         [elim.hpp_inv_offsets[p - nr]..elim.hpp_inv_offsets[p - nr] + dp * dp];
-                    for a in 0..dc {
-                        for b in 0..dc {
-                            let mut acc = 0.0;
-                            for r in 0..dp {
-                                let ib: f64 =
-                                    (0..dp).map(|k| inv[k * dp + r] * hpc[b * dp + k]).sum();
-                                acc += hpc[a * dp + r] * ib;
-                            }
-                            block[b * dc + a] -= acc;
-                        }
-                    }
+                    let mut tmp = [0.0f64; crate::block::MAX_BLOCK * crate::block::MAX_BLOCK];
+                    let tmp = &mut tmp[..dp * dc];
+                    kernels::square_times(tmp, inv, hpc, dp, dc);
+                    kernels::add_at_b(block, hpc, tmp, dp, dc, dc, -1.0);
                 }
             });
         }
@@ -551,9 +510,9 @@ impl LinearSolve for SchurPcg {
             &self.preconditioner_offsets,
             &self.reduced,
         );
-        let t = &mut self.t;
+        let partial = &mut self.partial;
         let iterations = conjugate_gradients(
-            |x, y| schur_product(elim, h, diag_add, x, t, y),
+            |x, y| schur_product(elim, h, diag_add, x, partial, y),
             |r, z| apply_block_diagonal(reduced, pre, pre_off, r, z),
             &self.rhs,
             &mut self.x,

@@ -207,3 +207,54 @@ fn bal_form_of_a_scene_converges_like_the_pinhole_form() {
         s.termination
     );
 }
+
+#[test]
+fn bad_observations_are_rejected_and_never_produce_nans() {
+    let scene = circle_scene(&CircleSceneParams {
+        points: 100,
+        ..Default::default()
+    });
+    let bal = to_bal(&scene, &scene.camera_from_world, &scene.points_world);
+    let cameras: Vec<BalCameraState> = bal
+        .cameras
+        .iter()
+        .map(|c| BalCameraState {
+            camera_from_world: c.camera_from_world,
+            intrinsics: c.intrinsics,
+        })
+        .collect();
+    let mut points = bal.points_world.clone();
+    let mut observations: Vec<(usize, usize, Vector2<f64>)> = bal
+        .observations
+        .iter()
+        .map(|o| (o.camera, o.point, o.measurement))
+        .collect();
+    // A NaN measurement, a point at (numerical) infinity, a point behind its camera.
+    observations[0].2 = Vector2::new(f64::NAN, 1.0);
+    points[observations[5].1] = nalgebra::Vector3::new(1e300, 1e300, 1e300);
+    let behind = observations[9];
+    let cam = &cameras[behind.0].camera_from_world;
+    // Put the point 2 m behind the camera (BAL cameras look down −z: behind is +z).
+    points[behind.1] = cam.inverse().act(&nalgebra::Vector3::new(0.0, 0.0, 2.0));
+    let mut ba = BalAdjustment::new(&cameras, &points, &observations, None).unwrap();
+    assert!(
+        ba.rejected.contains(&0) && ba.rejected.contains(&9),
+        "rejected: {:?}",
+        ba.rejected
+    );
+    let s = ba
+        .problem
+        .optimize(&SolverOptions {
+            max_iterations: 20,
+            ..Default::default()
+        })
+        .unwrap();
+    assert!(s.final_cost.is_finite());
+    for v in &ba.cameras {
+        let c = ba.problem.value(*v);
+        assert!(LieGroup::is_finite(&c.camera_from_world) && c.intrinsics.f.is_finite());
+    }
+    // Out-of-range indices are an error, not a panic.
+    let bad = vec![(99, 0, Vector2::zeros())];
+    assert!(BalAdjustment::new(&cameras, &points, &bad, None).is_err());
+}
