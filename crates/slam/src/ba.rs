@@ -148,7 +148,7 @@ impl<P: Projector<N>, const N: usize> Factor for AnchoredObservation<P, N> {
         jacobians: Option<&mut Jacobians<'_>>,
     ) -> bool {
         let psi = values.get(self.inverse_depth_point);
-        if !(psi.z > MIN_INVERSE_DEPTH) {
+        if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
             return false;
         }
         let t_la = values
@@ -204,7 +204,7 @@ impl<P: Projector<N>, const N: usize> Factor for AnchorObservation<P, N> {
         jacobians: Option<&mut Jacobians<'_>>,
     ) -> bool {
         let psi = values.get(self.inverse_depth_point);
-        if !(psi.z > MIN_INVERSE_DEPTH) {
+        if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
             return false;
         }
         let x = inverse_depth_to_point(psi);
