@@ -9,12 +9,15 @@
 
 #![warn(missing_docs)]
 
+pub mod bow;
 pub mod fast;
 pub mod image;
 pub mod interp;
 pub mod lk;
+pub mod orb;
 pub mod pyramid;
 pub mod quadtree;
+pub mod stereo;
 pub mod undistort;
 
 pub use image::{GrayImage, GrayImageF32, Image, ImageError};
