@@ -55,19 +55,28 @@ fn has_arc9(mask: u16) -> bool {
 /// where `t₀` is the detection threshold.
 pub fn fast_score(img: &GrayImage, u: usize, v: usize, threshold: u8) -> i32 {
     let c = img.get(u, v) as i32;
-    let mut d = [0i32; 16];
+    let mut d = [0i32; 32];
     for (k, &(du, dv)) in CIRCLE.iter().enumerate() {
         d[k] = c - img.get((u as i32 + du) as usize, (v as i32 + dv) as usize) as i32;
+        d[k + 16] = d[k];
+    }
+    // Sliding minima / maxima over 9 contiguous values by doubling: 2, 4, 8, then 9.
+    let mut mn2 = [0i32; 31];
+    let mut mx2 = [0i32; 31];
+    for k in 0..31 {
+        mn2[k] = d[k].min(d[k + 1]);
+        mx2[k] = d[k].max(d[k + 1]);
     }
     let mut best = threshold as i32;
-    for s in 0..16 {
-        let mut mn = i32::MAX;
-        let mut mx = i32::MIN;
-        for j in 0..9 {
-            let x = d[(s + j) & 15];
-            mn = mn.min(x);
-            mx = mx.max(x);
-        }
+    for k in 0..16 {
+        let mn = mn2[k]
+            .min(mn2[k + 2])
+            .min(mn2[k + 4].min(mn2[k + 6]))
+            .min(d[k + 8]);
+        let mx = mx2[k]
+            .max(mx2[k + 2])
+            .max(mx2[k + 4].max(mx2[k + 6]))
+            .max(d[k + 8]);
         best = best.max(mn).max(-mx);
     }
     best - 1
@@ -97,44 +106,95 @@ pub fn fast9_level(
     let data = img.data();
     let n = w - 6;
     let offsets: [isize; 16] = CIRCLE.map(|(du, dv)| dv as isize * s + du as isize);
-    let mut hi = vec![0u8; n];
-    let mut lo = vec![0u8; n];
-    let mut bright = vec![0u16; n];
-    let mut dark = vec![0u16; n];
     // Scores of the previous two rows and this one (0 = not a corner), for the 3×3 suppression.
     let mut scores = vec![vec![0i32; w]; 3];
     let mut cand: Vec<Vec<usize>> = vec![Vec::new(), Vec::new(), Vec::new()];
     let mut out = Vec::new();
+    let mut candidates: Vec<usize> = Vec::with_capacity(n);
+    const LANES: usize = 32;
     for y in 3..h - 3 {
         let base = y * img.stride() + 3;
         let centre = &data[base..base + n];
-        for ((h_, l_), &c) in hi.iter_mut().zip(lo.iter_mut()).zip(centre) {
-            *h_ = c.saturating_add(threshold);
-            *l_ = c.saturating_sub(threshold);
-        }
-        bright.iter_mut().for_each(|b| *b = 0);
-        dark.iter_mut().for_each(|b| *b = 0);
-        for (k, &off) in offsets.iter().enumerate() {
-            let start = (base as isize + off) as usize;
-            let ring = &data[start..start + n];
-            for ((((b, d), &p), &hv), &lv) in bright
-                .iter_mut()
-                .zip(dark.iter_mut())
-                .zip(ring)
-                .zip(&hi)
-                .zip(&lo)
-            {
-                *b |= ((p > hv) as u16) << k;
-                *d |= ((p < lv) as u16) << k;
+        let ring = |k: usize| {
+            let start = (base as isize + offsets[k]) as usize;
+            &data[start..start + n]
+        };
+        let rings: [&[u8]; 16] = std::array::from_fn(ring);
+        // Quick rejection (vectorised, as OpenCV's scalar pre-test): an arc of 9 contiguous
+        // circle pixels contains one pixel of every diametric pair (k, k + 8), so a bright
+        // (dark) corner needs, for all k < 8, pixel k or pixel k + 8 bright (dark).
+        candidates.clear();
+        let mut x = 0;
+        while x < n {
+            let m = LANES.min(n - x);
+            let mut flags = [0u8; LANES];
+            if m == LANES {
+                let c: &[u8; LANES] = centre[x..x + LANES].try_into().expect("lane chunk");
+                let mut hi = [0u8; LANES];
+                let mut lo = [0u8; LANES];
+                for i in 0..LANES {
+                    hi[i] = c[i].saturating_add(threshold);
+                    lo[i] = c[i].saturating_sub(threshold);
+                }
+                let mut ab = [1u8; LANES];
+                let mut ad = [1u8; LANES];
+                let mut alive = true;
+                for (step, k) in [0usize, 4, 2, 6, 1, 3, 5, 7].into_iter().enumerate() {
+                    let p: &[u8; LANES] = rings[k][x..x + LANES].try_into().expect("lane chunk");
+                    let q: &[u8; LANES] =
+                        rings[k + 8][x..x + LANES].try_into().expect("lane chunk");
+                    for i in 0..LANES {
+                        ab[i] &= ((p[i] > hi[i]) | (q[i] > hi[i])) as u8;
+                        ad[i] &= ((p[i] < lo[i]) | (q[i] < lo[i])) as u8;
+                    }
+                    if step == 1 || step == 3 {
+                        for i in 0..LANES {
+                            flags[i] = ab[i] | ad[i];
+                        }
+                        if u128::from_ne_bytes(flags[..16].try_into().expect("16"))
+                            | u128::from_ne_bytes(flags[16..].try_into().expect("16"))
+                            == 0
+                        {
+                            alive = false;
+                            break;
+                        }
+                    }
+                }
+                if !alive {
+                    x += LANES;
+                    continue;
+                }
+                for i in 0..LANES {
+                    flags[i] = ab[i] | ad[i];
+                }
+            } else {
+                flags[..m].iter_mut().for_each(|f| *f = 1);
             }
+            let mut bits = 0u32;
+            for (i, &f) in flags.iter().enumerate() {
+                bits |= ((f != 0) as u32) << i;
+            }
+            while bits != 0 {
+                let i = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                if i < m {
+                    candidates.push(x + i);
+                }
+            }
+            x += LANES;
         }
         let slot = y % 3;
         scores[slot].iter_mut().for_each(|x| *x = 0);
         cand[slot].clear();
-        for x in 0..n {
-            let (b, d) = (bright[x], dark[x]);
-            if (b | d) == 0 {
-                continue;
+        for &x in &candidates {
+            let c = centre[x];
+            let hi = c.saturating_add(threshold);
+            let lo = c.saturating_sub(threshold);
+            let (mut b, mut d) = (0u16, 0u16);
+            for (k, &off) in offsets.iter().enumerate() {
+                let p = data[(base as isize + x as isize + off) as usize];
+                b |= ((p > hi) as u16) << k;
+                d |= ((p < lo) as u16) << k;
             }
             if has_arc9(b) || has_arc9(d) {
                 let u = x + 3;

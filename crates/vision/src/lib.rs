@@ -18,6 +18,7 @@ pub mod orb;
 pub mod pyramid;
 pub mod quadtree;
 pub mod stereo;
+pub mod tvl1;
 pub mod undistort;
 
 pub use image::{GrayImage, GrayImageF32, Image, ImageError};

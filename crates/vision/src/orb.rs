@@ -9,7 +9,7 @@
 
 use crate::fast::{fast9_level, harris_score};
 use crate::image::{GrayImage, ImageError};
-use crate::pyramid::{gaussian_blur, resize_bilinear};
+use crate::pyramid::{gaussian_blur_radius, resize_bilinear};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -173,7 +173,7 @@ fn describe(img: &GrayImage, u: usize, v: usize, angle: f32) -> Descriptor {
 /// keypoints within `edge_threshold` of the border dropped, the best `2·n_l` by FAST score
 /// re-ranked by Harris response (7×7 window, `k = 0.04`), the best `n_l` kept, where
 /// `n_l ∝ scale_factor^{−l}` sums to `num_features`; then the intensity-centroid orientation and
-/// the rotated BRIEF descriptor on the level smoothed with a Gaussian (`σ = 2`).
+/// the rotated BRIEF descriptor on the level smoothed with a 7×7 Gaussian (`σ = 2`).
 pub fn detect_and_describe(
     img: &GrayImage,
     params: &OrbParams,
@@ -227,7 +227,7 @@ pub fn detect_and_describe(
         }
         corners.sort_by(|a, b| b.score.total_cmp(&a.score));
         corners.truncate(n_l);
-        let blurred = gaussian_blur(&level, 2.0);
+        let blurred = gaussian_blur_radius(&level, 2.0, 3);
         for c in &corners {
             let (u, v) = (c.u as usize, c.v as usize);
             let angle = ic_angle(&level, u, v);
@@ -315,6 +315,7 @@ pub fn match_descriptors(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pyramid::gaussian_blur;
 
     fn textured(w: usize, h: usize, seed: u64) -> GrayImage {
         let mut x = seed;

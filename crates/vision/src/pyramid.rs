@@ -1,6 +1,6 @@
 //! Image pyramids by half-sampling, resizing and Gaussian smoothing.
 
-use crate::image::{GrayImage, Image, ImageError};
+use crate::image::{GrayImage, ImageError};
 
 /// Half-samples an 8-bit image: `out(u, v) = ⌊(I(2u,2v) + I(2u+1,2v) + I(2u,2v+1) + I(2u+1,2v+1) + 2)/4⌋`,
 /// of size `⌊w/2⌋ × ⌊h/2⌋` (the last column/row of odd-sized images is dropped).
@@ -128,38 +128,54 @@ pub fn resize_bilinear(
 /// Separable Gaussian blur with standard deviation `sigma` and kernel radius `⌈3σ⌉`, borders
 /// replicated. Works for any non-empty size (including 1×1).
 pub fn gaussian_blur(img: &GrayImage, sigma: f32) -> GrayImage {
-    if img.is_empty() || sigma <= 0.0 {
+    gaussian_blur_radius(img, sigma, (3.0 * sigma).ceil().max(0.0) as usize)
+}
+
+/// Separable Gaussian blur with standard deviation `sigma` truncated to radius `radius`
+/// (kernel `(2r+1)` taps, e.g. OpenCV's 7×7, `σ = 2` for ORB is `r = 3`), borders replicated.
+/// Fixed-point: the taps are quantised to 1/256 and the two passes rounded once.
+pub fn gaussian_blur_radius(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
+    if img.is_empty() || sigma <= 0.0 || radius == 0 {
         return img.clone();
     }
-    let r = (3.0 * sigma).ceil() as i64;
-    let mut k: Vec<f32> = (-r..=r)
+    let r = radius as i64;
+    let kf: Vec<f32> = (-r..=r)
         .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
         .collect();
-    let s: f32 = k.iter().sum();
-    k.iter_mut().for_each(|x| *x /= s);
-    let (w, h) = (img.width() as i64, img.height() as i64);
-    let mut tmp = Image::<f32>::new(img.width(), img.height());
+    let s: f32 = kf.iter().sum();
+    let mut k: Vec<u16> = kf.iter().map(|x| (x / s * 256.0).round() as u16).collect();
+    // Make the taps sum to exactly 256 by adjusting the centre tap.
+    let total: i32 = k.iter().map(|&x| x as i32).sum();
+    k[radius] = (k[radius] as i32 + 256 - total) as u16;
+    let (w, h) = (img.width(), img.height());
+    let mut tmp = vec![0u16; w * h];
+    let mut buf = vec![0u8; w + 2 * radius];
     for y in 0..h {
-        let row = img.row(y as usize);
-        let o = tmp.row_mut(y as usize);
-        for x in 0..w {
-            let mut acc = 0.0;
-            for (i, kv) in k.iter().enumerate() {
-                let xx = (x + i as i64 - r).clamp(0, w - 1) as usize;
-                acc += kv * row[xx] as f32;
+        let row = img.row(y);
+        buf[radius..radius + w].copy_from_slice(row);
+        for i in 0..radius {
+            buf[i] = row[0];
+            buf[radius + w + i] = row[w - 1];
+        }
+        let acc = &mut tmp[y * w..(y + 1) * w];
+        for (j, &kj) in k.iter().enumerate() {
+            for (a, &p) in acc.iter_mut().zip(&buf[j..j + w]) {
+                *a += kj * p as u16;
             }
-            o[x as usize] = acc;
         }
     }
-    let mut out = GrayImage::new(img.width(), img.height());
-    for y in 0..h {
-        for x in 0..w as usize {
-            let mut acc = 0.0;
-            for (i, kv) in k.iter().enumerate() {
-                let yy = (y + i as i64 - r).clamp(0, h - 1) as usize;
-                acc += kv * tmp.get(x, yy);
+    let mut out = GrayImage::new(w, h);
+    let mut acc = vec![0u32; w];
+    for y in 0..h as i64 {
+        acc.iter_mut().for_each(|a| *a = 0);
+        for (j, &kj) in k.iter().enumerate() {
+            let yy = (y + j as i64 - r).clamp(0, h as i64 - 1) as usize;
+            for (a, &t) in acc.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                *a += kj as u32 * t as u32;
             }
-            out.set(x, y as usize, (acc + 0.5).clamp(0.0, 255.0) as u8);
+        }
+        for (o, &a) in out.row_mut(y as usize).iter_mut().zip(&acc) {
+            *o = ((a + 32768) >> 16) as u8;
         }
     }
     out
