@@ -58,10 +58,7 @@ fn sample_patch(img: &Image<f32>, x: f32, y: f32, n: usize, out: &mut [f32]) {
             let rb = &img.row(y0 as usize + r + 1)[x0..x0 + n + 1];
             let o = &mut out[r * n..(r + 1) * n];
             for i in 0..n {
-                o[i] = w00 * ra[i] as f32
-                    + w10 * ra[i + 1] as f32
-                    + w01 * rb[i] as f32
-                    + w11 * rb[i + 1] as f32;
+                o[i] = w00 * ra[i] + w10 * ra[i + 1] + w01 * rb[i] + w11 * rb[i + 1];
             }
         }
     } else {
@@ -72,10 +69,8 @@ fn sample_patch(img: &Image<f32>, x: f32, y: f32, n: usize, out: &mut [f32]) {
             let rb = img.row(cy(y0 + r + 1));
             for i in 0..n as i64 {
                 let (c0, c1) = (cx(x0 + i), cx(x0 + i + 1));
-                out[(r * n as i64 + i) as usize] = w00 * ra[c0] as f32
-                    + w10 * ra[c1] as f32
-                    + w01 * rb[c0] as f32
-                    + w11 * rb[c1] as f32;
+                out[(r * n as i64 + i) as usize] =
+                    w00 * ra[c0] + w10 * ra[c1] + w01 * rb[c0] + w11 * rb[c1];
             }
         }
     }
