@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 mod experiment;
+mod inspect;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
 #[derive(Parser, Debug)]
@@ -18,11 +19,15 @@ enum Command {
     /// Reproduce an experiment of the thesis.
     #[command(subcommand)]
     Experiment(experiment::ExperimentCommand),
+    /// Look at what the visual front-end sees (corners, disparity, flow, tracks, matches).
+    #[command(subcommand)]
+    Inspect(inspect::InspectCommand),
 }
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Experiment(cmd) => experiment::run(cmd),
+        Command::Inspect(cmd) => inspect::run(cmd),
     }
 }
