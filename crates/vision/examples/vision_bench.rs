@@ -7,8 +7,7 @@
 //!   vision_bench orb IMG NFEATURES
 //!   vision_bench lk IMG0 IMG1 POINTS.txt LEVELS  (points: "u v" per line; prints tracks)
 //!   vision_bench stereo LEFT RIGHT MAXDISP BLOCK OUT.f32
-//!   vision_bench tvl1 IMG0 IMG1 OUT.f32
-//!   vision_bench dense ... (see the bench script)
+//!   vision_bench tvl1 IMG0 IMG1 OUT         (writes OUT.du, OUT.dv as raw f32)
 
 use std::time::Instant;
 use vision::fast::fast9_pyramid;
@@ -19,7 +18,9 @@ fn time_ms<T>(min_reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let mut times = Vec::new();
     let start = Instant::now();
     let mut out = None;
-    while times.len() < min_reps || (start.elapsed().as_secs_f64() < 1.0 && times.len() < 200) {
+    while times.len() < min_reps
+        || (start.elapsed().as_secs_f64() < 1.0 && times.len() < 200 && min_reps > 1)
+    {
         let t = Instant::now();
         let r = f();
         times.push(t.elapsed().as_secs_f64() * 1e3);
@@ -118,6 +119,20 @@ fn main() {
             println!(
                 "{}",
                 serde_json::json!({"ms": ms, "width": d.width(), "height": d.height()})
+            );
+        }
+        "tvl1" => {
+            let i0 = load_gray_u8(arg(2)).expect("image 0");
+            let i1 = load_gray_u8(arg(3)).expect("image 1");
+            let params = vision::tvl1::Tvl1Params::default();
+            let (ms, f) = time_ms(1, || {
+                vision::tvl1::tvl1_flow(&i0, &i1, &params).expect("flow")
+            });
+            write_f32(&format!("{}.du", arg(4)), &f.du);
+            write_f32(&format!("{}.dv", arg(4)), &f.dv);
+            println!(
+                "{}",
+                serde_json::json!({"ms": ms, "width": f.du.width(), "height": f.du.height()})
             );
         }
         other => panic!("unknown command {other}"),
