@@ -54,10 +54,13 @@ fn has_arc9(mask: u16) -> bool {
 /// `score = max(t₀, max over arcs A of 9 contiguous pixels of max(min_A d_k, min_A −d_k)) − 1`,
 /// where `t₀` is the detection threshold.
 pub fn fast_score(img: &GrayImage, u: usize, v: usize, threshold: u8) -> i32 {
-    let c = img.get(u, v) as i32;
+    let data = img.data();
+    let centre = v * img.stride() + u;
+    let c = data[centre] as i32;
+    let s = img.stride() as isize;
     let mut d = [0i32; 32];
     for (k, &(du, dv)) in CIRCLE.iter().enumerate() {
-        d[k] = c - img.get((u as i32 + du) as usize, (v as i32 + dv) as usize) as i32;
+        d[k] = c - data[(centre as isize + dv as isize * s + du as isize) as usize] as i32;
         d[k + 16] = d[k];
     }
     // Sliding minima / maxima over 9 contiguous values by doubling: 2, 4, 8, then 9.
@@ -111,7 +114,7 @@ pub fn fast9_level(
     let mut cand: Vec<Vec<usize>> = vec![Vec::new(), Vec::new(), Vec::new()];
     let mut out = Vec::new();
     let mut candidates: Vec<usize> = Vec::with_capacity(n);
-    const LANES: usize = 32;
+    const LANES: usize = 16;
     for y in 3..h - 3 {
         let base = y * img.stride() + 3;
         let centre = &data[base..base + n];
@@ -151,10 +154,7 @@ pub fn fast9_level(
                         for i in 0..LANES {
                             flags[i] = ab[i] | ad[i];
                         }
-                        if u128::from_ne_bytes(flags[..16].try_into().expect("16"))
-                            | u128::from_ne_bytes(flags[16..].try_into().expect("16"))
-                            == 0
-                        {
+                        if u128::from_ne_bytes(flags) == 0 {
                             alive = false;
                             break;
                         }

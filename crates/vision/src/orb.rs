@@ -155,8 +155,10 @@ fn describe(img: &GrayImage, u: usize, v: usize, angle: f32) -> Descriptor {
     let centre = (v * img.stride() + u) as isize;
     let at = |x: i8, y: i8| -> u8 {
         let (x, y) = (x as f32, y as f32);
-        let rx = (x * c - y * s).round() as isize;
-        let ry = (x * s + y * c).round() as isize;
+        // Round half away from zero without a libm call.
+        let (fx, fy) = (x * c - y * s, x * s + y * c);
+        let rx = (fx + 0.5f32.copysign(fx)) as isize;
+        let ry = (fy + 0.5f32.copysign(fy)) as isize;
         data[(centre + ry * st + rx) as usize]
     };
     for (i, p) in brief_pattern().iter().enumerate() {

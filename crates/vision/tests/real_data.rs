@@ -317,7 +317,10 @@ fn seven_scenes(db_step: usize, query_step: usize) {
         d.translation().norm() <= 0.3 && d.rotation().angle().to_degrees() <= 20.0
     };
     let (mut hits, mut total, mut answerable, mut qtime) = (0, 0, 0, 0.0);
-    for i in (600..=700).step_by(query_step).chain((940..=999).step_by(query_step)) {
+    for i in (600..=700)
+        .step_by(query_step)
+        .chain((940..=999).step_by(query_step))
+    {
         let q = pose(i);
         let (_, d) = detect_and_describe(&frame(i), &params).unwrap();
         let t = Instant::now();
