@@ -14,20 +14,34 @@ use vision::fast::fast9_pyramid;
 use vision::image::load_gray_u8;
 use vision::pyramid::Pyramid;
 
+/// CPU time of this thread in nanoseconds (`/proc/thread-self/schedstat`), so that timings are
+/// not inflated by other processes competing for the cores; `None` where unavailable.
+fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// Runs `f` repeatedly (at least `min_reps` times, and for at least 1 s of CPU time when
+/// `min_reps > 1`) and returns the mean CPU milliseconds per call (wall clock if no CPU clock).
 fn time_ms<T>(min_reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
-    let mut times = Vec::new();
-    let start = Instant::now();
-    let mut out = None;
-    while times.len() < min_reps
-        || (start.elapsed().as_secs_f64() < 1.0 && times.len() < 200 && min_reps > 1)
-    {
-        let t = Instant::now();
-        let r = f();
-        times.push(t.elapsed().as_secs_f64() * 1e3);
-        out = Some(r);
+    let wall = Instant::now();
+    let cpu0 = thread_cpu_ns();
+    let mut reps = 0usize;
+    loop {
+        let out = f();
+        reps += 1;
+        let spent = match (cpu0, thread_cpu_ns()) {
+            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+            _ => wall.elapsed().as_secs_f64(),
+        };
+        if reps >= min_reps && (min_reps <= 1 || spent >= 1.0 || reps >= 500) {
+            return (spent * 1e3 / reps as f64, out);
+        }
     }
-    times.sort_by(|a, b| a.total_cmp(b));
-    (times[times.len() / 2], out.expect("ran at least once"))
 }
 
 fn write_f32(path: &str, img: &vision::Image<f32>) {

@@ -19,8 +19,9 @@ pub struct LkParams {
     pub max_iterations: usize,
     /// Stop when the update is shorter than this (pixels of the level).
     pub epsilon: f32,
-    /// Reject a window whose structure tensor's smaller eigenvalue, divided by the window's
-    /// pixel count and by 255² (OpenCV's `minEigThreshold` convention), is below this.
+    /// Reject a window whose structure tensor's smaller eigenvalue (gradients in intensity units
+    /// per pixel), divided by the window's pixel count, is below this (OpenCV's
+    /// `minEigThreshold`).
     pub min_eigenvalue: f32,
     /// Number of pyramid levels used (≤ the pyramids' depth).
     pub levels: usize,
@@ -43,6 +44,7 @@ impl Default for LkParams {
 /// Samples the `n×n` patch whose top-left sample is at real coordinates `(x, y)` with bilinear
 /// interpolation (the weights are the same for all samples); coordinates are clamped to the
 /// image (border replication). Writes `n·n` values into `out`.
+#[inline(always)]
 fn sample_patch(img: &Image<f32>, x: f32, y: f32, n: usize, out: &mut [f32]) {
     let xf = x.floor();
     let yf = y.floor();
@@ -99,6 +101,7 @@ impl Work {
 
 /// Tracks one point on one level: template centred at `p` in `prev`, initial displacement `g`.
 /// Returns the refined displacement or `None` if the window is untextured.
+#[inline(always)]
 fn track_level(
     prev: &Image<f32>,
     next: &Image<f32>,
@@ -128,9 +131,7 @@ fn track_level(
         }
     }
     let npx = (n * n) as f32;
-    let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt())
-        / npx
-        / (255.0 * 255.0);
+    let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt()) / npx;
     let det = hxx * hyy - hxy * hxy;
     if min_eig < params.min_eigenvalue || det <= f32::EPSILON {
         return None;
@@ -196,6 +197,37 @@ pub fn track(
     initial: Option<&[[f32; 2]]>,
     params: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { track_avx2(prev, next, points, initial, params) };
+        }
+    }
+    track_impl(prev, next, points, initial, params)
+}
+
+/// [`track_impl`] compiled for AVX2 (runtime dispatch; identical arithmetic, wider vectors).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn track_avx2(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[[f32; 2]],
+    initial: Option<&[[f32; 2]]>,
+    params: &LkParams,
+) -> Vec<Option<[f32; 2]>> {
+    track_impl(prev, next, points, initial, params)
+}
+
+#[inline(always)]
+fn track_impl(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[[f32; 2]],
+    initial: Option<&[[f32; 2]]>,
+    params: &LkParams,
+) -> Vec<Option<[f32; 2]>> {
     let levels = params.levels.min(prev.len()).min(next.len()).max(1);
     let prev_f: Vec<Image<f32>> = prev.levels[..levels].iter().map(|l| l.to_f32()).collect();
     let next_f: Vec<Image<f32>> = next.levels[..levels].iter().map(|l| l.to_f32()).collect();
@@ -204,32 +236,42 @@ pub fn track(
         next.levels[0].width() as f32,
         next.levels[0].height() as f32,
     );
-    points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            if !(p[0].is_finite() && p[1].is_finite()) {
-                return None;
-            }
-            let pred = initial.and_then(|v| v.get(i)).copied().unwrap_or(*p);
-            let top = levels - 1;
-            let s = (1u32 << top) as f32;
-            let mut g = [(pred[0] - p[0]) / s, (pred[1] - p[1]) / s];
-            for l in (0..levels).rev() {
-                let s = (1u32 << l) as f32;
-                let pl = [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
-                g = track_level(&prev_f[l], &next_f[l], pl, g, params, &mut wk)?;
-                if l > 0 {
-                    g = [g[0] * 2.0, g[1] * 2.0];
+    // A plain loop (no closures) so that everything inlines into the AVX2 instance.
+    let mut out = Vec::with_capacity(points.len());
+    'points: for (i, p) in points.iter().enumerate() {
+        if !(p[0].is_finite() && p[1].is_finite()) {
+            out.push(None);
+            continue;
+        }
+        let pred = match initial {
+            Some(v) if i < v.len() => v[i],
+            _ => *p,
+        };
+        let top = levels - 1;
+        let s = (1u32 << top) as f32;
+        let mut g = [(pred[0] - p[0]) / s, (pred[1] - p[1]) / s];
+        for l in (0..levels).rev() {
+            let s = (1u32 << l) as f32;
+            let pl = [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
+            match track_level(&prev_f[l], &next_f[l], pl, g, params, &mut wk) {
+                Some(x) => g = x,
+                None => {
+                    out.push(None);
+                    continue 'points;
                 }
             }
-            let q = [p[0] + g[0], p[1] + g[1]];
-            if q[0] < 0.0 || q[1] < 0.0 || q[0] > w0 - 1.0 || q[1] > h0 - 1.0 {
-                return None;
+            if l > 0 {
+                g = [g[0] * 2.0, g[1] * 2.0];
             }
-            Some(q)
-        })
-        .collect()
+        }
+        let q = [p[0] + g[0], p[1] + g[1]];
+        if q[0] < 0.0 || q[1] < 0.0 || q[0] > w0 - 1.0 || q[1] > h0 - 1.0 {
+            out.push(None);
+        } else {
+            out.push(Some(q));
+        }
+    }
+    out
 }
 
 /// [`track`] followed by tracking the results back from `next` to `prev`; a track is kept only

@@ -134,7 +134,26 @@ pub fn gaussian_blur(img: &GrayImage, sigma: f32) -> GrayImage {
 /// Separable Gaussian blur with standard deviation `sigma` truncated to radius `radius`
 /// (kernel `(2r+1)` taps, e.g. OpenCV's 7×7, `σ = 2` for ORB is `r = 3`), borders replicated.
 /// Fixed-point: the taps are quantised to 1/256 and the two passes rounded once.
+/// (Runtime-dispatched to an AVX2 build of the same code where available.)
 pub fn gaussian_blur_radius(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { blur_avx2(img, sigma, radius) };
+        }
+    }
+    blur_impl(img, sigma, radius)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn blur_avx2(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
+    blur_impl(img, sigma, radius)
+}
+
+#[inline(always)]
+fn blur_impl(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
     if img.is_empty() || sigma <= 0.0 || radius == 0 {
         return img.clone();
     }

@@ -23,17 +23,26 @@ pub struct StereoParams {
     /// Maximum difference (pixels) between the left disparity and the right disparity at the
     /// matched pixel (left-right consistency); negative disables the check.
     pub max_lr_difference: f32,
+    /// Apply a 3×3 median filter to the valid disparities (removes isolated outliers; a pixel
+    /// stays invalid if fewer than 5 of its 9 neighbours are valid).
+    pub median_filter: bool,
 }
 
 impl Default for StereoParams {
-    /// 64 disparities, 9×9 blocks, 7×7 census, 10 % uniqueness, 1 px left-right tolerance.
+    /// 64 disparities, 9×9 blocks, 7×7 census, no uniqueness test, 1 px left-right tolerance
+    /// (the usual SGM/BM choice), 3×3 median.
+    ///
+    /// The left-right check is the outlier test; a uniqueness ratio on top (e.g. 10 %) removed
+    /// more correct than wrong matches on all three Middlebury pairs (tsukuba, venus, teddy,
+    /// bad-pixel rate with unmatched pixels counted as bad), so it is off by default.
     fn default() -> Self {
         Self {
             max_disparity: 64,
             block_radius: 4,
             census_radius: 3,
-            uniqueness: 0.1,
+            uniqueness: 0.0,
             max_lr_difference: 1.0,
+            median_filter: true,
         }
     }
 }
@@ -187,7 +196,10 @@ pub fn block_match(
                     second = c;
                 }
             }
-            if second != u16::MAX && (best as f32) * (1.0 + params.uniqueness) >= second as f32 {
+            if params.uniqueness > 0.0
+                && second != u16::MAX
+                && (best as f32) * (1.0 + params.uniqueness) >= second as f32
+            {
                 continue;
             }
             let mut dsub = bd as f32;
@@ -207,7 +219,37 @@ pub fn block_match(
             out[x] = dsub;
         }
     }
+    if params.median_filter {
+        disp = median3_valid(&disp);
+    }
     Ok(disp)
+}
+
+/// 3×3 median over the valid (finite) values of the neighbourhood; invalid pixels with at least
+/// 5 valid neighbours are filled, pixels with fewer valid neighbours become invalid.
+fn median3_valid(d: &Image<f32>) -> Image<f32> {
+    let (w, h) = (d.width() as i64, d.height() as i64);
+    Image::from_fn(d.width(), d.height(), |u, v| {
+        let mut a = [0.0f32; 9];
+        let mut n = 0;
+        for dv in -1..=1i64 {
+            for du in -1..=1i64 {
+                let (x, y) = (u as i64 + du, v as i64 + dv);
+                if x >= 0 && y >= 0 && x < w && y < h {
+                    let val = d.get(x as usize, y as usize);
+                    if val.is_finite() {
+                        a[n] = val;
+                        n += 1;
+                    }
+                }
+            }
+        }
+        if n < 5 {
+            return f32::NAN;
+        }
+        a[..n].sort_by(|x, y| x.total_cmp(y));
+        a[n / 2]
+    })
 }
 
 /// Converts a depth image (e.g. 16-bit millimetres) to a disparity image of a virtual stereo
