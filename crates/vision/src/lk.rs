@@ -8,6 +8,7 @@
 //! Coarse-to-fine: the displacement found on level `l + 1` (doubled) initialises level `l`.
 
 use crate::image::Image;
+use crate::interp::Pixel;
 use crate::pyramid::Pyramid;
 
 /// Parameters of [`track`].
@@ -45,7 +46,7 @@ impl Default for LkParams {
 /// interpolation (the weights are the same for all samples); coordinates are clamped to the
 /// image (border replication). Writes `n·n` values into `out`.
 #[inline(always)]
-fn sample_patch(img: &Image<f32>, x: f32, y: f32, n: usize, out: &mut [f32]) {
+fn sample_patch<T: Pixel>(img: &Image<T>, x: f32, y: f32, n: usize, out: &mut [f32]) {
     let xf = x.floor();
     let yf = y.floor();
     let a = x - xf;
@@ -60,19 +61,35 @@ fn sample_patch(img: &Image<f32>, x: f32, y: f32, n: usize, out: &mut [f32]) {
             let rb = &img.row(y0 as usize + r + 1)[x0..x0 + n + 1];
             let o = &mut out[r * n..(r + 1) * n];
             for i in 0..n {
-                o[i] = w00 * ra[i] + w10 * ra[i + 1] + w01 * rb[i] + w11 * rb[i + 1];
+                o[i] = w00 * ra[i].to_f32()
+                    + w10 * ra[i + 1].to_f32()
+                    + w01 * rb[i].to_f32()
+                    + w11 * rb[i + 1].to_f32();
             }
         }
     } else {
-        let cx = |x: i64| x.clamp(0, w - 1) as usize;
-        let cy = |y: i64| y.clamp(0, h - 1) as usize;
-        for r in 0..n as i64 {
-            let ra = img.row(cy(y0 + r));
-            let rb = img.row(cy(y0 + r + 1));
-            for i in 0..n as i64 {
-                let (c0, c1) = (cx(x0 + i), cx(x0 + i + 1));
-                out[(r * n as i64 + i) as usize] =
-                    w00 * ra[c0] + w10 * ra[c1] + w01 * rb[c0] + w11 * rb[c1];
+        // Border: clamp the column indices once, then gather row by row.
+        let mut small = [0usize; 64];
+        let mut large = Vec::new();
+        let cols: &mut [usize] = if n < 64 {
+            &mut small[..n + 1]
+        } else {
+            large.resize(n + 1, 0);
+            &mut large
+        };
+        for (i, c) in cols.iter_mut().enumerate() {
+            *c = (x0 + i as i64).clamp(0, w - 1) as usize;
+        }
+        for r in 0..n {
+            let ra = img.row((y0 + r as i64).clamp(0, h - 1) as usize);
+            let rb = img.row((y0 + r as i64 + 1).clamp(0, h - 1) as usize);
+            let o = &mut out[r * n..(r + 1) * n];
+            for i in 0..n {
+                let (c0, c1) = (cols[i], cols[i + 1]);
+                o[i] = w00 * ra[c0].to_f32()
+                    + w10 * ra[c1].to_f32()
+                    + w01 * rb[c0].to_f32()
+                    + w11 * rb[c1].to_f32();
             }
         }
     }
@@ -102,9 +119,9 @@ impl Work {
 /// Tracks one point on one level: template centred at `p` in `prev`, initial displacement `g`.
 /// Returns the refined displacement or `None` if the window is untextured.
 #[inline(always)]
-fn track_level(
-    prev: &Image<f32>,
-    next: &Image<f32>,
+fn track_level<T: Pixel>(
+    prev: &Image<T>,
+    next: &Image<T>,
     p: [f32; 2],
     g: [f32; 2],
     params: &LkParams,
@@ -138,6 +155,7 @@ fn track_level(
     }
     let (ixx, ixy, iyy) = (hyy / det, -hxy / det, hxx / det);
     let mut g = g;
+    let mut prev_step = [f32::NAN, f32::NAN];
     for _ in 0..params.max_iterations {
         let (qx, qy) = (p[0] + g[0], p[1] + g[1]);
         if !(qx > -rf
@@ -173,11 +191,21 @@ fn track_level(
         }
         let dx = ixx * bx + ixy * by;
         let dy = ixy * bx + iyy * by;
-        g[0] -= dx;
-        g[1] -= dy;
         if dx * dx + dy * dy < params.epsilon * params.epsilon {
+            g[0] -= dx;
+            g[1] -= dy;
             break;
         }
+        // Oscillation between two positions (as OpenCV): step back half way and stop.
+        if (dx + prev_step[0]).abs() < params.epsilon && (dy + prev_step[1]).abs() < params.epsilon
+        {
+            g[0] -= 0.5 * dx;
+            g[1] -= 0.5 * dy;
+            break;
+        }
+        g[0] -= dx;
+        g[1] -= dy;
+        prev_step = [dx, dy];
     }
     if g[0].is_finite() && g[1].is_finite() {
         Some(g)
@@ -229,8 +257,7 @@ fn track_impl(
     params: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
     let levels = params.levels.min(prev.len()).min(next.len()).max(1);
-    let prev_f: Vec<Image<f32>> = prev.levels[..levels].iter().map(|l| l.to_f32()).collect();
-    let next_f: Vec<Image<f32>> = next.levels[..levels].iter().map(|l| l.to_f32()).collect();
+    let (prev_f, next_f) = (&prev.levels, &next.levels);
     let mut wk = Work::new(2 * params.window_radius + 1);
     let (w0, h0) = (
         next.levels[0].width() as f32,

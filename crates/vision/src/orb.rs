@@ -145,26 +145,56 @@ fn ic_angle(img: &GrayImage, u: usize, v: usize) -> f32 {
     (m01 as f32).atan2(m10 as f32)
 }
 
-/// Computes the rotated-BRIEF descriptor at `(u, v)` of a smoothed level image with angle `θ`:
-/// bit `i` is `I(R_θ p_i) < I(R_θ q_i)` for the pattern pair `(p_i, q_i)`.
-fn describe(img: &GrayImage, u: usize, v: usize, angle: f32) -> Descriptor {
-    let (s, c) = angle.sin_cos();
-    let mut d = [0u64; 4];
-    let st = img.stride() as isize;
-    let data = img.data();
-    let centre = (v * img.stride() + u) as isize;
-    let at = |x: i8, y: i8| -> u8 {
-        let (x, y) = (x as f32, y as f32);
-        // Round half away from zero without a libm call.
-        let (fx, fy) = (x * c - y * s, x * s + y * c);
-        let rx = (fx + 0.5f32.copysign(fx)) as isize;
-        let ry = (fy + 0.5f32.copysign(fy)) as isize;
-        data[(centre + ry * st + rx) as usize]
-    };
-    for (i, p) in brief_pattern().iter().enumerate() {
-        if at(p[0], p[1]) < at(p[2], p[3]) {
-            d[i >> 6] |= 1u64 << (i & 63);
+/// Number of orientation bins of the steered pattern: 30 (12° steps), as in Rublee et al.
+/// (2011, §4.2), which precompute the rotated BRIEF pattern for discretised angles.
+pub const ANGLE_BINS: usize = 30;
+
+/// The pattern rotated to each angle bin `b` (angle `2πb/30`), rounded to integer offsets
+/// `(dx, dy)` for the 512 sample points (pairs interleaved: `p_i` at `2i`, `q_i` at `2i + 1`).
+fn steered_patterns() -> &'static [[(i8, i8); 512]; ANGLE_BINS] {
+    static P: OnceLock<Box<[[(i8, i8); 512]; ANGLE_BINS]>> = OnceLock::new();
+    P.get_or_init(|| {
+        let mut out = Box::new([[(0i8, 0i8); 512]; ANGLE_BINS]);
+        for (b, table) in out.iter_mut().enumerate() {
+            let a = b as f32 * 2.0 * std::f32::consts::PI / ANGLE_BINS as f32;
+            let (s, c) = a.sin_cos();
+            for (i, p) in brief_pattern().iter().enumerate() {
+                for (j, (x, y)) in [(p[0], p[1]), (p[2], p[3])].into_iter().enumerate() {
+                    let (x, y) = (x as f32, y as f32);
+                    let rx = (x * c - y * s).round() as i8;
+                    let ry = (x * s + y * c).round() as i8;
+                    table[2 * i + j] = (rx, ry);
+                }
+            }
         }
+        out
+    })
+}
+
+/// Computes the steered BRIEF descriptor at `(u, v)` of a smoothed level image with angle `θ`
+/// (discretised to [`ANGLE_BINS`] bins): bit `i` is `I(R_θ p_i) < I(R_θ q_i)` for the pattern
+/// pair `(p_i, q_i)`.
+fn describe(img: &GrayImage, u: usize, v: usize, angle: f32) -> Descriptor {
+    let turns = angle / (2.0 * std::f32::consts::PI);
+    let bin = ((turns - turns.floor()) * ANGLE_BINS as f32).round() as usize % ANGLE_BINS;
+    let table = &steered_patterns()[bin];
+    // The 31×31 patch around the keypoint: every steered point lies within radius 15.
+    let rows: [&[u8]; 31] = std::array::from_fn(|r| &img.row(v + r - 15)[u - 15..u + 16]);
+    let mut a = [0u8; 256];
+    let mut b = [0u8; 256];
+    for i in 0..256 {
+        let (px, py) = table[2 * i];
+        let (qx, qy) = table[2 * i + 1];
+        a[i] = rows[(py + 15) as usize][(px + 15) as usize];
+        b[i] = rows[(qy + 15) as usize][(qx + 15) as usize];
+    }
+    let mut d = [0u64; 4];
+    for (w, dw) in d.iter_mut().enumerate() {
+        let mut bits = 0u64;
+        for k in 0..64 {
+            bits |= ((a[w * 64 + k] < b[w * 64 + k]) as u64) << k;
+        }
+        *dw = bits;
     }
     d
 }
@@ -175,7 +205,8 @@ fn describe(img: &GrayImage, u: usize, v: usize, angle: f32) -> Descriptor {
 /// keypoints within `edge_threshold` of the border dropped, the best `2·n_l` by FAST score
 /// re-ranked by Harris response (7×7 window, `k = 0.04`), the best `n_l` kept, where
 /// `n_l ∝ scale_factor^{−l}` sums to `num_features`; then the intensity-centroid orientation and
-/// the rotated BRIEF descriptor on the level smoothed with a 7×7 Gaussian (`σ = 2`).
+/// the steered BRIEF descriptor (30 angle bins) on the level smoothed with a 7×7 Gaussian
+/// (`σ = 2`).
 pub fn detect_and_describe(
     img: &GrayImage,
     params: &OrbParams,

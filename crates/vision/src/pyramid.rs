@@ -99,27 +99,32 @@ pub fn resize_bilinear(
     let sy = img.height() as f32 / height as f32;
     let max_u = (img.width() - 1) as f32;
     let max_v = (img.height() - 1) as f32;
-    // Precompute column taps (fixed point, 8-bit weights).
-    let cols: Vec<(usize, usize, u32)> = (0..width)
-        .map(|x| {
-            let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, max_u);
-            let x0 = fx.floor() as usize;
-            let x1 = (x0 + 1).min(img.width() - 1);
-            (x0, x1, ((fx - x0 as f32) * 256.0).round() as u32)
-        })
-        .collect();
+    // Column taps (fixed point, 8-bit weights).
+    let mut x0s = Vec::with_capacity(width);
+    let mut x1s = Vec::with_capacity(width);
+    let mut wxs = Vec::with_capacity(width);
+    for x in 0..width {
+        let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, max_u);
+        let x0 = fx.floor() as usize;
+        x0s.push(x0);
+        x1s.push((x0 + 1).min(img.width() - 1));
+        wxs.push(((fx - x0 as f32) * 256.0).round() as u32);
+    }
     let mut out = GrayImage::new(width, height);
+    let mut blend = vec![0u32; img.width()];
     for y in 0..height {
         let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, max_v);
         let y0 = fy.floor() as usize;
         let y1 = (y0 + 1).min(img.height() - 1);
         let wy = ((fy - y0 as f32) * 256.0).round() as u32;
-        let (r0, r1) = (img.row(y0), img.row(y1));
+        // Vertical blend of the two source rows (vectorised), then horizontal taps.
+        for ((bl, &a), &b) in blend.iter_mut().zip(img.row(y0)).zip(img.row(y1)) {
+            *bl = a as u32 * (256 - wy) + b as u32 * wy;
+        }
         let o = out.row_mut(y);
-        for (px, &(x0, x1, wx)) in o.iter_mut().zip(&cols) {
-            let top = r0[x0] as u32 * (256 - wx) + r0[x1] as u32 * wx;
-            let bot = r1[x0] as u32 * (256 - wx) + r1[x1] as u32 * wx;
-            *px = ((top * (256 - wy) + bot * wy + (1 << 15)) >> 16) as u8;
+        for (k, px) in o.iter_mut().enumerate() {
+            let (a, b, wx) = (blend[x0s[k]], blend[x1s[k]], wxs[k]);
+            *px = ((a * (256 - wx) + b * wx + (1 << 15)) >> 16) as u8;
         }
     }
     Ok(out)
