@@ -151,8 +151,10 @@ pub const ANGLE_BINS: usize = 30;
 
 /// The pattern rotated to each angle bin `b` (angle `2πb/30`), rounded to integer offsets
 /// `(dx, dy)` for the 512 sample points (pairs interleaved: `p_i` at `2i`, `q_i` at `2i + 1`).
-fn steered_patterns() -> &'static [[(i8, i8); 512]; ANGLE_BINS] {
-    static P: OnceLock<Box<[[(i8, i8); 512]; ANGLE_BINS]>> = OnceLock::new();
+type SteeredTables = [[(i8, i8); 512]; ANGLE_BINS];
+
+fn steered_patterns() -> &'static SteeredTables {
+    static P: OnceLock<Box<SteeredTables>> = OnceLock::new();
     P.get_or_init(|| {
         let mut out = Box::new([[(0i8, 0i8); 512]; ANGLE_BINS]);
         for (b, table) in out.iter_mut().enumerate() {
