@@ -123,24 +123,22 @@ fn umax() -> &'static [i32; 16] {
 /// `θ = atan2(m₀₁, m₁₀)`, `m_pq = Σ uᵖ vᵠ I(u, v)`.
 fn ic_angle(img: &GrayImage, u: usize, v: usize) -> f32 {
     let um = umax();
-    let (mut m01, mut m10) = (0i64, 0i64);
-    let centre = img.row(v);
-    for du in -HALF_PATCH..=HALF_PATCH {
-        m10 += du as i64 * centre[(u as i32 + du) as usize] as i64;
+    let (mut m01, mut m10) = (0i32, 0i32);
+    let centre = &img.row(v)[u - 15..u + 16];
+    for (k, &p) in centre.iter().enumerate() {
+        m10 += (k as i32 - 15) * p as i32;
     }
-    for dv in 1..=HALF_PATCH {
-        let d = um[dv as usize];
-        let (rp, rm) = (img.row(v + dv as usize), img.row(v - dv as usize));
-        let mut vsum = 0i64;
-        for du in -d..=d {
-            let (p, m) = (
-                rp[(u as i32 + du) as usize] as i64,
-                rm[(u as i32 + du) as usize] as i64,
-            );
+    for dv in 1..=HALF_PATCH as usize {
+        let d = um[dv] as usize;
+        let rp = &img.row(v + dv)[u - d..u + d + 1];
+        let rm = &img.row(v - dv)[u - d..u + d + 1];
+        let mut vsum = 0i32;
+        for (k, (&p, &m)) in rp.iter().zip(rm).enumerate() {
+            let (p, m) = (p as i32, m as i32);
             vsum += p - m;
-            m10 += du as i64 * (p + m);
+            m10 += (k as i32 - d as i32) * (p + m);
         }
-        m01 += dv as i64 * vsum;
+        m01 += dv as i32 * vsum;
     }
     (m01 as f32).atan2(m10 as f32)
 }
@@ -180,15 +178,18 @@ fn describe(img: &GrayImage, u: usize, v: usize, angle: f32) -> Descriptor {
     let turns = angle / (2.0 * std::f32::consts::PI);
     let bin = ((turns - turns.floor()) * ANGLE_BINS as f32).round() as usize % ANGLE_BINS;
     let table = &steered_patterns()[bin];
-    // The 31×31 patch around the keypoint: every steered point lies within radius 15.
-    let rows: [&[u8]; 31] = std::array::from_fn(|r| &img.row(v + r - 15)[u - 15..u + 16]);
+    // Flat offsets from the keypoint: every steered point lies within radius 15, inside the
+    // image since keypoints keep at least 16 pixels from the border.
+    let st = img.stride() as isize;
+    let data = &img.data()[(v - 15) * img.stride() + u - 15..(v + 15) * img.stride() + u + 16];
+    let centre = 15 * st + 15;
     let mut a = [0u8; 256];
     let mut b = [0u8; 256];
     for i in 0..256 {
         let (px, py) = table[2 * i];
         let (qx, qy) = table[2 * i + 1];
-        a[i] = rows[(py + 15) as usize][(px + 15) as usize];
-        b[i] = rows[(qy + 15) as usize][(qx + 15) as usize];
+        a[i] = data[(centre + py as isize * st + px as isize) as usize];
+        b[i] = data[(centre + qy as isize * st + qx as isize) as usize];
     }
     let mut d = [0u64; 4];
     for (w, dw) in d.iter_mut().enumerate() {
@@ -227,6 +228,7 @@ pub fn detect_and_describe(
     let mut kps = Vec::new();
     let mut descs = Vec::new();
     let mut assigned = 0usize;
+    let mut prev_level: Option<GrayImage> = None;
     let border = params.edge_threshold.max(HALF_PATCH as usize + 1);
     for l in 0..nl {
         let scale = sf.powi(l as i32);
@@ -243,10 +245,11 @@ pub fn detect_and_describe(
             ((params.num_features as f32 * inv.powi(l as i32) / total_weight).round() as usize)
                 .min(params.num_features - assigned)
         };
+        // Each level is resized from the previous one (as OpenCV's ORB does).
         let level = if l == 0 {
             img.clone()
         } else {
-            resize_bilinear(img, w, h)?
+            resize_bilinear(prev_level.as_ref().unwrap_or(img), w, h)?
         };
         let mut corners: Vec<_> = fast9_level(&level, params.fast_threshold, true, l)
             .into_iter()
@@ -277,6 +280,7 @@ pub fn detect_and_describe(
             });
         }
         assigned += corners.len();
+        prev_level = Some(level);
     }
     Ok((kps, descs))
 }

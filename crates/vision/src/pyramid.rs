@@ -88,6 +88,28 @@ pub fn resize_bilinear(
     width: usize,
     height: usize,
 ) -> Result<GrayImage, ImageError> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { resize_avx2(img, width, height) };
+        }
+    }
+    resize_impl(img, width, height)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn resize_avx2(
+    img: &GrayImage,
+    width: usize,
+    height: usize,
+) -> Result<GrayImage, ImageError> {
+    resize_impl(img, width, height)
+}
+
+#[inline(always)]
+fn resize_impl(img: &GrayImage, width: usize, height: usize) -> Result<GrayImage, ImageError> {
     if img.is_empty() || width == 0 || height == 0 {
         return Err(ImageError::TooSmall {
             width: img.width(),
@@ -111,7 +133,7 @@ pub fn resize_bilinear(
         wxs.push(((fx - x0 as f32) * 256.0).round() as u32);
     }
     let mut out = GrayImage::new(width, height);
-    let mut blend = vec![0u32; img.width()];
+    let mut blend = vec![0u16; img.width()];
     for y in 0..height {
         let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, max_v);
         let y0 = fy.floor() as usize;
@@ -119,11 +141,12 @@ pub fn resize_bilinear(
         let wy = ((fy - y0 as f32) * 256.0).round() as u32;
         // Vertical blend of the two source rows (vectorised), then horizontal taps.
         for ((bl, &a), &b) in blend.iter_mut().zip(img.row(y0)).zip(img.row(y1)) {
-            *bl = a as u32 * (256 - wy) + b as u32 * wy;
+            // ≤ 255·256 = 65280: fits u16.
+            *bl = (a as u32 * (256 - wy) + b as u32 * wy) as u16;
         }
         let o = out.row_mut(y);
         for (k, px) in o.iter_mut().enumerate() {
-            let (a, b, wx) = (blend[x0s[k]], blend[x1s[k]], wxs[k]);
+            let (a, b, wx) = (blend[x0s[k]] as u32, blend[x1s[k]] as u32, wxs[k]);
             *px = ((a * (256 - wx) + b * wx + (1 << 15)) >> 16) as u8;
         }
     }
