@@ -128,8 +128,8 @@ fn ic_angle(img: &GrayImage, u: usize, v: usize) -> f32 {
     for (k, &p) in centre.iter().enumerate() {
         m10 += (k as i32 - 15) * p as i32;
     }
-    for dv in 1..=HALF_PATCH as usize {
-        let d = um[dv] as usize;
+    for (dv, &d) in um.iter().enumerate().skip(1) {
+        let d = d as usize;
         let rp = &img.row(v + dv)[u - d..u + d + 1];
         let rm = &img.row(v - dv)[u - d..u + d + 1];
         let mut vsum = 0i32;
