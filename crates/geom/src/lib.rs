@@ -23,6 +23,7 @@
 
 #![warn(missing_docs)]
 
+pub mod align;
 mod bal;
 mod distortion;
 mod pinhole;

@@ -1,0 +1,29 @@
+//! `data`: dataset readers and writers, and trajectory evaluation.
+//!
+//! * [`paths`]: where the real datasets are (`DWSLAM_DATA` or `../shared/data`), and the
+//!   skip-or-fail helper [`paths::require`] for tests;
+//! * [`g2o`]: g2o pose-graph files (reader, writer, spanning-tree initialisation), into a
+//!   [`PoseGraph`] over `lie::Se2` or `lie::Se3` (thesis §5.3.2, eq. 5.15–5.16);
+//! * [`isam`]: the noise-free ground truth of iSAM's pose-graph datasets (`EDGE2`/`EDGE3`);
+//! * [`bal`]: "Bundle Adjustment in the Large" problems, plain or `.bz2`;
+//! * [`trajectory`]: TUM, KITTI and EuRoC trajectory files and timestamp association;
+//! * [`eval`]: absolute trajectory error (after SE(3) or Sim(3) alignment, thesis eq.
+//!   5.11–5.14) and relative pose error.
+//!
+//! Every reader returns a [`DataError`] naming the file, the line and what was expected; no
+//! input panics.
+
+#![warn(missing_docs)]
+
+pub mod bal;
+mod error;
+pub mod eval;
+pub mod g2o;
+pub mod isam;
+pub mod paths;
+mod pose_graph;
+mod text;
+pub mod trajectory;
+
+pub use error::{DataError, ParseErrorKind};
+pub use pose_graph::{Edge, PoseGraph, PoseGraph2, PoseGraph3, Vertex, check_information};

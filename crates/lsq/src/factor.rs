@@ -1,0 +1,216 @@
+//! Factors: residuals of any arity with analytic Jacobians, their information matrices.
+
+use crate::values::{Values, VarKey};
+use nalgebra::{DMatrix, SMatrix};
+
+/// The largest number of variables one factor may connect.
+pub const MAX_ARITY: usize = 8;
+
+/// A residual `r(x₁, …, x_k)` of fixed dimension over some variables, with its Jacobians
+/// with respect to each variable's update (left perturbation `exp(ε)·x` for groups, thesis
+/// eq. 2.102).
+///
+/// The problem weights the residual with the factor's information matrix `Λ` and a robust
+/// kernel given when the factor is added; the cost contributed is `½ρ(rᵀΛr)`.
+pub trait Factor: Send + Sync {
+    /// The dimension of the residual.
+    fn residual_dim(&self) -> usize;
+
+    /// The variables, in the order of the Jacobian blocks. Called once, when the factor is
+    /// added to a problem.
+    fn variables(&self) -> Vec<VarKey>;
+
+    /// Writes the residual and, if asked, the Jacobian blocks. Returns `false` when the
+    /// residual is undefined at these values (e.g. a point behind the camera): the factor then
+    /// contributes nothing to this iteration and is counted as rejected.
+    fn evaluate(
+        &self,
+        values: &Values,
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) -> bool;
+}
+
+/// The Jacobian blocks of one factor: block `k` is `residual_dim × dim(x_k)`, column-major.
+pub struct Jacobians<'a> {
+    data: &'a mut [f64],
+    rows: usize,
+    offsets: [usize; MAX_ARITY + 1],
+    wanted: [bool; MAX_ARITY],
+    arity: usize,
+}
+
+impl<'a> Jacobians<'a> {
+    pub(crate) fn new(
+        data: &'a mut [f64],
+        rows: usize,
+        dims: &[usize],
+        wanted: [bool; MAX_ARITY],
+    ) -> Self {
+        let mut offsets = [0; MAX_ARITY + 1];
+        for (k, d) in dims.iter().enumerate() {
+            offsets[k + 1] = offsets[k] + rows * d;
+        }
+        debug_assert!(data.len() >= offsets[dims.len()]);
+        Jacobians {
+            data,
+            rows,
+            offsets,
+            wanted,
+            arity: dims.len(),
+        }
+    }
+
+    /// Whether block `k` is needed (its variable is free). A factor may skip computing blocks
+    /// that are not wanted.
+    #[inline]
+    pub fn wants(&self, k: usize) -> bool {
+        self.wanted[k]
+    }
+
+    /// Block `k`, column-major.
+    #[inline]
+    pub fn block_mut(&mut self, k: usize) -> &mut [f64] {
+        assert!(
+            k < self.arity,
+            "Jacobian block {k} of a factor with {} variables",
+            self.arity
+        );
+        &mut self.data[self.offsets[k]..self.offsets[k + 1]]
+    }
+
+    /// Sets block `k` from a fixed-size matrix (its shape must be `residual_dim × dim(x_k)`).
+    #[inline]
+    pub fn set<const R: usize, const C: usize>(&mut self, k: usize, block: &SMatrix<f64, R, C>) {
+        debug_assert_eq!(R, self.rows, "Jacobian block rows");
+        self.block_mut(k).copy_from_slice(block.as_slice());
+    }
+}
+
+/// The information matrix `Λ` of a factor (inverse covariance of its residual).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Information {
+    /// `Λ = I`.
+    Identity,
+    /// `Λ = I/σ²`, the same standard deviation in every component.
+    Isotropic(f64),
+    /// A diagonal `Λ`.
+    Diagonal(Vec<f64>),
+    /// A full symmetric positive-definite `Λ`.
+    Full(DMatrix<f64>),
+}
+
+/// Why an information matrix was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum InformationError {
+    /// The size does not match the residual dimension.
+    #[error("information matrix is {got}×{got} but the residual has dimension {expected}")]
+    WrongSize {
+        /// The residual dimension.
+        expected: usize,
+        /// The size given.
+        got: usize,
+    },
+    /// Not finite, not symmetric or not positive definite.
+    #[error("information matrix is not symmetric positive definite: {reason}")]
+    NotPositiveDefinite {
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// How a residual is whitened: `r̃ = W·r` with `WᵀW = Λ`.
+#[derive(Clone, Debug)]
+pub(crate) enum Whitening {
+    Identity,
+    Scale(f64),
+    /// Offset into the problem's pool of diagonal entries.
+    Diagonal(usize),
+    /// Offset into the pool of upper-triangular `W = Lᵀ` (column-major `R×R`), `Λ = L·Lᵀ`.
+    Full(usize),
+}
+
+impl Information {
+    /// Validates `Λ` for a residual of dimension `dim` and converts it to a whitening, pushing
+    /// any matrix into `pool`.
+    pub(crate) fn whitening(
+        &self,
+        dim: usize,
+        pool: &mut Vec<f64>,
+    ) -> Result<Whitening, InformationError> {
+        let bad = |reason: String| InformationError::NotPositiveDefinite { reason };
+        match self {
+            Information::Identity => Ok(Whitening::Identity),
+            Information::Isotropic(sigma) => {
+                if !(sigma.is_finite() && *sigma > 0.0) {
+                    return Err(bad(format!("standard deviation {sigma}")));
+                }
+                Ok(Whitening::Scale(1.0 / sigma))
+            }
+            Information::Diagonal(d) => {
+                if d.len() != dim {
+                    return Err(InformationError::WrongSize {
+                        expected: dim,
+                        got: d.len(),
+                    });
+                }
+                if let Some(x) = d.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
+                    return Err(bad(format!("diagonal entry {x}")));
+                }
+                let offset = pool.len();
+                pool.extend(d.iter().map(|x| x.sqrt()));
+                Ok(Whitening::Diagonal(offset))
+            }
+            Information::Full(m) => {
+                if m.nrows() != dim || m.ncols() != dim {
+                    return Err(InformationError::WrongSize {
+                        expected: dim,
+                        got: m.nrows(),
+                    });
+                }
+                if !m.iter().all(|x| x.is_finite()) {
+                    return Err(bad("non-finite entry".into()));
+                }
+                let asym = (m - m.transpose()).abs().max();
+                if asym > 1e-9 * (1.0 + m.abs().max()) {
+                    return Err(bad(format!("asymmetric by {asym:e}")));
+                }
+                let chol = m
+                    .clone()
+                    .cholesky()
+                    .ok_or_else(|| bad("Cholesky factorisation failed".into()))?;
+                let w = chol.l().transpose();
+                let offset = pool.len();
+                pool.extend_from_slice(w.as_slice());
+                Ok(Whitening::Full(offset))
+            }
+        }
+    }
+}
+
+impl Whitening {
+    /// `x ← W·x` for a column of length `dim`.
+    #[inline]
+    pub(crate) fn apply(&self, pool: &[f64], dim: usize, x: &mut [f64]) {
+        match *self {
+            Whitening::Identity => {}
+            Whitening::Scale(s) => x.iter_mut().for_each(|v| *v *= s),
+            Whitening::Diagonal(o) => {
+                for (v, w) in x.iter_mut().zip(&pool[o..o + dim]) {
+                    *v *= w;
+                }
+            }
+            Whitening::Full(o) => {
+                // W is upper triangular (column-major): (W·x)_i = Σ_{j ≥ i} W_ij x_j.
+                let w = &pool[o..o + dim * dim];
+                for i in 0..dim {
+                    let mut acc = 0.0;
+                    for j in i..dim {
+                        acc += w[j * dim + i] * x[j];
+                    }
+                    x[i] = acc;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,7 @@
+//! `slam`: the back-end of dwslam — factors for bundle adjustment and pose graphs (thesis
+//! ch. 3, 5, app. B), and, as the system grows, the SLAM graph, double window optimisation and
+//! loop closure (thesis ch. 6).
+
+#![warn(missing_docs)]
+
+pub mod pose_graph;
