@@ -9,21 +9,31 @@ use std::path::{Path, PathBuf};
 use vision::image::{GrayImage, Image, load_gray_u8};
 use vision::undistort::{StereoRectification, UndistortMap, rectify_stereo};
 
-/// `$DWSLAM_DATA`, else `<workspace root>/../shared/data`; `None` (with a message) if absent.
+/// `$DWSLAM_DATA` (if set and non-empty), else `<workspace root>/../shared/data`, joined with
+/// `sub`; `None` (after printing that the test skips) if absent — unless
+/// `DWSLAM_REQUIRE_DATA=1` (set by `.ci/run`), which turns a missing dataset into a failure, as
+/// the `data` crate's `paths::require` does.
 pub fn data_dir(sub: &str) -> Option<PathBuf> {
-    let root = std::env::var_os("DWSLAM_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    let root = match std::env::var_os("DWSLAM_DATA") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+    };
     let p = root.join(sub);
     if p.exists() {
-        Some(p)
-    } else {
-        eprintln!(
-            "SKIP: real data {} not found (set DWSLAM_DATA)",
+        return Some(p);
+    }
+    let test = std::thread::current().name().unwrap_or("test").to_string();
+    if std::env::var("DWSLAM_REQUIRE_DATA").is_ok_and(|v| v.trim() == "1") {
+        panic!(
+            "{test}: {} not found and DWSLAM_REQUIRE_DATA=1 forbids skipping",
             p.display()
         );
-        None
     }
+    eprintln!(
+        "skipping {test}: {} not found (set DWSLAM_DATA)",
+        p.display()
+    );
+    None
 }
 
 #[derive(serde::Deserialize)]
