@@ -356,14 +356,17 @@ fn flow(a: &Path, b: &Path, out: &Path, iterations: usize) -> Result<()> {
     let t = std::time::Instant::now();
     let f = vision::tvl1::tvl1_flow(&ia, &ib, &params)
         .with_context(|| format!("flow from {} to {}", a.display(), b.display()))?;
-    let max =
+    // Saturation scaled by the 99th percentile of the magnitude (robust to a few outliers).
+    let mut mags: Vec<f32> =
         f.du.data()
             .iter()
             .zip(f.dv.data())
             .map(|(x, y)| x.hypot(*y))
-            .fold(1e-3f32, f32::max);
+            .collect();
+    mags.sort_by(|a, b| a.total_cmp(b));
+    let max = mags[(mags.len() * 99 / 100).min(mags.len() - 1)].max(1e-3);
     println!(
-        "TV-L1 flow {}×{} in {:.2} s, max magnitude {max:.2} px",
+        "TV-L1 flow {}×{} in {:.2} s, 99th-percentile magnitude {max:.2} px",
         ia.width(),
         ia.height(),
         t.elapsed().as_secs_f64()
