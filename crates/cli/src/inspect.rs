@@ -540,3 +540,70 @@ fn orb_match(a: &Path, b: &Path, out: &Path, features: usize) -> Result<()> {
     println!("wrote {}", out.display());
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Writes a smooth textured grey PNG, shifted by `dx` pixels.
+    fn write_png(path: &Path, w: usize, h: usize, dx: f32) {
+        let g = GrayImage::from_fn(w, h, |u, v| {
+            let x = u as f32 - dx;
+            let y = v as f32;
+            (128.0
+                + 60.0 * (x * 0.3).sin() * (y * 0.23).cos()
+                + 40.0 * ((x + 2.0 * y) * 0.11).sin())
+            .clamp(0.0, 255.0) as u8
+        });
+        let mut c = Canvas::from_gray(&g);
+        // Add a few corners.
+        for k in 0..8 {
+            c.square(
+                10.0 + 12.0 * k as f32,
+                20.0 + 5.0 * k as f32,
+                3.0,
+                [255, 255, 255],
+            );
+        }
+        c.save(path).unwrap();
+    }
+
+    #[test]
+    fn every_inspect_command_writes_its_output() {
+        let dir = std::env::temp_dir().join(format!("dwslam-inspect-{}", std::process::id()));
+        let frames = dir.join("frames");
+        std::fs::create_dir_all(&frames).unwrap();
+        let (a, b) = (dir.join("a.png"), dir.join("b.png"));
+        write_png(&a, 121, 83, 0.0);
+        write_png(&b, 121, 83, 3.0);
+        for k in 0..3 {
+            write_png(&frames.join(format!("{k:03}.png")), 121, 83, k as f32);
+        }
+        features(&a, &dir.join("f.png"), 20, 3, 50).unwrap();
+        let pfm = dir.join("d.pfm");
+        stereo(&b, &a, 16, 9, &pfm, Some(&dir.join("d.png"))).unwrap();
+        let bytes = std::fs::read(&pfm).unwrap();
+        let header = b"Pf\n121 83\n-1\n";
+        assert_eq!(&bytes[..header.len()], header);
+        assert_eq!(bytes.len(), header.len() + 121 * 83 * 4);
+        flow(&a, &b, &dir.join("flow.png"), 10).unwrap();
+        track(&frames, &dir.join("tracks"), 10, 50).unwrap();
+        assert_eq!(std::fs::read_dir(dir.join("tracks")).unwrap().count(), 3);
+        orb_match(&a, &b, &dir.join("m.png"), 100).unwrap();
+        // Bad input is an error naming the file, not a panic.
+        let missing = dir.join("missing.png");
+        let e = features(&missing, &dir.join("x.png"), 20, 3, 10).unwrap_err();
+        assert!(format!("{e:#}").contains("missing.png"));
+        assert!(stereo(&a, &b, 16, 8, &pfm, None).is_err());
+        assert!(
+            track(
+                &dir.join("empty-dir-that-does-not-exist"),
+                &dir.join("t2"),
+                3,
+                10
+            )
+            .is_err()
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
