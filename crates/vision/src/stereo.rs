@@ -3,8 +3,9 @@
 //!
 //! Matching cost: the Hamming distance between census transforms (Zabih & Woodfill 1994) of a
 //! `(2c+1)²` neighbourhood, robust to gain and bias differences between the cameras, summed
-//! over a `(2r+1)²` block. Winner-takes-all with a uniqueness test, parabolic sub-pixel
-//! refinement, and a left-right consistency check.
+//! over a `(2r+1)²` block, optionally with shiftable blocks (a min filter over the aggregated
+//! costs). Winner-takes-all (optionally with a uniqueness test), parabolic sub-pixel refinement,
+//! a left-right consistency check and a 3×3 median.
 
 use crate::image::{GrayImage, Image, ImageError};
 
@@ -26,11 +27,16 @@ pub struct StereoParams {
     /// Apply a 3×3 median filter to the valid disparities (removes isolated outliers; a pixel
     /// stays invalid if fewer than 5 of its 9 neighbours are valid).
     pub median_filter: bool,
+    /// Shiftable windows (Scharstein & Szeliski 2002, "shiftable windows"): each pixel takes the
+    /// lowest cost of the blocks shifted by up to this many pixels in `u` and `v` (0 = centred
+    /// blocks only). Reduces foreground fattening at depth discontinuities.
+    pub shift_radius: usize,
 }
 
 impl Default for StereoParams {
     /// 64 disparities, 9×9 blocks, 7×7 census, no uniqueness test, 1 px left-right tolerance
-    /// (the usual SGM/BM choice), 3×3 median.
+    /// (the usual SGM/BM choice), 3×3 median, blocks shiftable by half the block radius (2 px,
+    /// so the pixel stays in the inner half of its block).
     ///
     /// The left-right check is the outlier test; a uniqueness ratio on top (e.g. 10 %) removed
     /// more correct than wrong matches on all three Middlebury pairs (tsukuba, venus, teddy,
@@ -43,6 +49,7 @@ impl Default for StereoParams {
             uniqueness: 0.0,
             max_lr_difference: 1.0,
             median_filter: true,
+            shift_radius: 2,
         }
     }
 }
@@ -126,7 +133,8 @@ pub fn block_match(
             *s += c as u16;
         }
     }
-    let mut agg = vec![0u16; w * nd];
+    // Aggregated costs of every row, [y][x][d].
+    let mut aggv = vec![0u16; h * w * nd];
     let mut disp = Image::<f32>::filled(w, h, f32::NAN);
     let mut right_best = vec![0usize; w];
     let mut right_cost = vec![u32::MAX; w];
@@ -138,6 +146,7 @@ pub fn block_match(
                 *s = *s + a as u16 - b as u16;
             }
         }
+        let agg = &mut aggv[y * w * nd..(y + 1) * w * nd];
         // Horizontal sums with clamped columns.
         let col = |x: i64| -> &[u16] {
             let xx = x.clamp(0, w as i64 - 1) as usize;
@@ -162,6 +171,42 @@ pub fn block_match(
                 cur[d] = prev[d] + add[d] - sub[d];
             }
         }
+    }
+    // Shiftable windows: the cost of a pixel is the best of the blocks shifted by up to
+    // `shift` pixels around it (a min filter over the aggregated costs), which keeps a block
+    // from straddling a depth discontinuity when a neighbouring block does not.
+    let sr = params.shift_radius;
+    if sr > 0 {
+        let mut tmp = vec![0u16; w * nd];
+        for y in 0..h {
+            let row = &mut aggv[y * w * nd..(y + 1) * w * nd];
+            for x in 0..w {
+                let (x0, x1) = (x.saturating_sub(sr), (x + sr).min(w - 1));
+                let t = &mut tmp[x * nd..(x + 1) * nd];
+                t.copy_from_slice(&row[x0 * nd..(x0 + 1) * nd]);
+                for xx in x0 + 1..=x1 {
+                    for (a, &b) in t.iter_mut().zip(&row[xx * nd..(xx + 1) * nd]) {
+                        *a = (*a).min(b);
+                    }
+                }
+            }
+            row.copy_from_slice(&tmp);
+        }
+    }
+    let mut vmin = vec![0u16; w * nd];
+    for y in 0..h {
+        let agg: &[u16] = if sr > 0 {
+            let (y0, y1) = (y.saturating_sub(sr), (y + sr).min(h - 1));
+            vmin.copy_from_slice(&aggv[y0 * w * nd..(y0 + 1) * w * nd]);
+            for yy in y0 + 1..=y1 {
+                for (a, &b) in vmin.iter_mut().zip(&aggv[yy * w * nd..(yy + 1) * w * nd]) {
+                    *a = (*a).min(b);
+                }
+            }
+            &vmin
+        } else {
+            &aggv[y * w * nd..(y + 1) * w * nd]
+        };
         // Right-image winners for the left-right check: d_R(x_r) = argmin_d agg(x_r + d, d).
         right_best.iter_mut().for_each(|b| *b = 0);
         right_cost.iter_mut().for_each(|c| *c = u32::MAX);
