@@ -7,6 +7,7 @@ mod ba;
 mod experiment;
 mod pgo;
 mod plot;
+mod inspect;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
 #[derive(Parser, Debug)]
@@ -25,6 +26,9 @@ enum Command {
     Pgo(pgo::PgoArgs),
     /// Bundle adjustment of a BAL problem or a synthetic scene.
     Ba(ba::BaArgs),
+    /// Look at what the visual front-end sees (corners, disparity, flow, tracks, matches).
+    #[command(subcommand)]
+    Inspect(inspect::InspectCommand),
 }
 
 fn main() -> Result<()> {
@@ -33,5 +37,6 @@ fn main() -> Result<()> {
         Command::Experiment(cmd) => experiment::run(cmd),
         Command::Pgo(args) => pgo::run(args),
         Command::Ba(args) => ba::run(args),
+        Command::Inspect(cmd) => inspect::run(cmd),
     }
 }

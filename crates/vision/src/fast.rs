@@ -53,24 +53,38 @@ fn has_arc9(mask: u16) -> bool {
 /// pixel is still a FAST-9 corner, minus one. With `d_k = I_c − I_k` over the circle,
 /// `score = max(t₀, max over arcs A of 9 contiguous pixels of max(min_A d_k, min_A −d_k)) − 1`,
 /// where `t₀` is the detection threshold.
+#[inline(always)]
 pub fn fast_score(img: &GrayImage, u: usize, v: usize, threshold: u8) -> i32 {
-    let c = img.get(u, v) as i32;
-    let mut d = [0i32; 16];
+    let rows: [&[u8]; 7] = std::array::from_fn(|r| &img.row(v + r - 3)[u - 3..u + 4]);
+    let mut p = [0u8; 16];
     for (k, &(du, dv)) in CIRCLE.iter().enumerate() {
-        d[k] = c - img.get((u as i32 + du) as usize, (v as i32 + dv) as usize) as i32;
+        p[k] = rows[(dv + 3) as usize][(du + 3) as usize];
     }
-    let mut best = threshold as i32;
-    for s in 0..16 {
-        let mut mn = i32::MAX;
-        let mut mx = i32::MIN;
-        for j in 0..9 {
-            let x = d[(s + j) & 15];
-            mn = mn.min(x);
-            mx = mx.max(x);
+    score_from_circle(rows[3][3], &p, threshold)
+}
+
+/// The FAST score from the centre value and the 16 circle values (see [`fast_score`]).
+#[inline(always)]
+fn score_from_circle(centre: u8, p: &[u8; 16], threshold: u8) -> i32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        simd::score(centre, p, threshold)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let c = centre as i16;
+        let d: [i16; 16] = std::array::from_fn(|k| c - p[k] as i16);
+        let mut best = threshold as i16;
+        for s in 0..16 {
+            let (mut mn, mut mx) = (i16::MAX, i16::MIN);
+            for j in 0..9 {
+                mn = mn.min(d[(s + j) & 15]);
+                mx = mx.max(d[(s + j) & 15]);
+            }
+            best = best.max(mn).max(-mx);
         }
-        best = best.max(mn).max(-mx);
+        best as i32 - 1
     }
-    best - 1
 }
 
 /// Detects FAST-9 corners: pixel `c` (at least 3 pixels from the border) is a corner if 9
@@ -83,12 +97,45 @@ pub fn fast9(img: &GrayImage, threshold: u8, nonmax_suppression: bool) -> Vec<Co
 }
 
 /// [`fast9`] tagging corners with a pyramid level.
+///
+/// On x86-64 CPUs with AVX2 a copy of the detector compiled for AVX2 is used (runtime
+/// dispatch, as OpenCV does); results are identical.
 pub fn fast9_level(
     img: &GrayImage,
     threshold: u8,
     nonmax_suppression: bool,
     level: usize,
 ) -> Vec<Corner> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { fast9_avx2(img, threshold, nonmax_suppression, level) };
+        }
+    }
+    fast9_impl::<16>(img, threshold, nonmax_suppression, level, false)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn fast9_avx2(
+    img: &GrayImage,
+    threshold: u8,
+    nonmax_suppression: bool,
+    level: usize,
+) -> Vec<Corner> {
+    fast9_impl::<32>(img, threshold, nonmax_suppression, level, true)
+}
+
+#[inline(always)]
+fn fast9_impl<const LANES: usize>(
+    img: &GrayImage,
+    threshold: u8,
+    nonmax_suppression: bool,
+    level: usize,
+    use_avx2: bool,
+) -> Vec<Corner> {
+    let _ = use_avx2;
     let (w, h) = (img.width(), img.height());
     if w < 7 || h < 7 {
         return Vec::new();
@@ -97,46 +144,132 @@ pub fn fast9_level(
     let data = img.data();
     let n = w - 6;
     let offsets: [isize; 16] = CIRCLE.map(|(du, dv)| dv as isize * s + du as isize);
-    let mut hi = vec![0u8; n];
-    let mut lo = vec![0u8; n];
-    let mut bright = vec![0u16; n];
-    let mut dark = vec![0u16; n];
     // Scores of the previous two rows and this one (0 = not a corner), for the 3×3 suppression.
     let mut scores = vec![vec![0i32; w]; 3];
     let mut cand: Vec<Vec<usize>> = vec![Vec::new(), Vec::new(), Vec::new()];
     let mut out = Vec::new();
+    let mut candidates: Vec<usize> = Vec::with_capacity(n);
+    // Columns already known to be corners (SIMD path), processed before `candidates`.
+    let mut certain: Vec<usize> = Vec::with_capacity(n);
     for y in 3..h - 3 {
         let base = y * img.stride() + 3;
         let centre = &data[base..base + n];
-        for ((h_, l_), &c) in hi.iter_mut().zip(lo.iter_mut()).zip(centre) {
-            *h_ = c.saturating_add(threshold);
-            *l_ = c.saturating_sub(threshold);
-        }
-        bright.iter_mut().for_each(|b| *b = 0);
-        dark.iter_mut().for_each(|b| *b = 0);
-        for (k, &off) in offsets.iter().enumerate() {
-            let start = (base as isize + off) as usize;
-            let ring = &data[start..start + n];
-            for ((((b, d), &p), &hv), &lv) in bright
-                .iter_mut()
-                .zip(dark.iter_mut())
-                .zip(ring)
-                .zip(&hi)
-                .zip(&lo)
-            {
-                *b |= ((p > hv) as u16) << k;
-                *d |= ((p < lv) as u16) << k;
+        #[cfg(not(target_arch = "x86_64"))]
+        let ring = |k: usize| {
+            let start = (base as isize + offsets[k]) as usize;
+            &data[start..start + n]
+        };
+        candidates.clear();
+        certain.clear();
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: AVX2 is used only if the CPU has it; SSE2 is part of x86-64. Loads stay
+            // inside the image: the chunk lies in columns 3..w−3 and rows y ± 3 exist.
+            unsafe {
+                if use_avx2 {
+                    simd::row_corners_avx2(
+                        data,
+                        base,
+                        &offsets,
+                        n,
+                        threshold,
+                        &mut certain,
+                        &mut candidates,
+                    );
+                } else {
+                    simd::row_corners_sse2(
+                        data,
+                        base,
+                        &offsets,
+                        n,
+                        threshold,
+                        &mut certain,
+                        &mut candidates,
+                    );
+                }
             }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let rings: [&[u8]; 16] = std::array::from_fn(ring);
+        // Quick rejection (vectorised, as OpenCV's scalar pre-test): an arc of 9 contiguous
+        // circle pixels contains one pixel of every diametric pair (k, k + 8), so a bright
+        // (dark) corner needs, for all k < 8, pixel k or pixel k + 8 bright (dark).
+        #[cfg(not(target_arch = "x86_64"))]
+        let mut x = 0;
+        #[cfg(not(target_arch = "x86_64"))]
+        while x < n {
+            let m = LANES.min(n - x);
+            let mut flags = [0u8; LANES];
+            if m == LANES {
+                let c: &[u8; LANES] = centre[x..x + LANES].try_into().expect("lane chunk");
+                let mut hi = [0u8; LANES];
+                let mut lo = [0u8; LANES];
+                for i in 0..LANES {
+                    hi[i] = c[i].saturating_add(threshold);
+                    lo[i] = c[i].saturating_sub(threshold);
+                }
+                let mut ab = [1u8; LANES];
+                let mut ad = [1u8; LANES];
+                let mut alive = true;
+                for (step, k) in [0usize, 4, 2, 6, 1, 3, 5, 7].into_iter().enumerate() {
+                    let p: &[u8; LANES] = rings[k][x..x + LANES].try_into().expect("lane chunk");
+                    let q: &[u8; LANES] =
+                        rings[k + 8][x..x + LANES].try_into().expect("lane chunk");
+                    for i in 0..LANES {
+                        ab[i] &= ((p[i] > hi[i]) | (q[i] > hi[i])) as u8;
+                        ad[i] &= ((p[i] < lo[i]) | (q[i] < lo[i])) as u8;
+                    }
+                    if step == 1 || step == 3 {
+                        for i in 0..LANES {
+                            flags[i] = ab[i] | ad[i];
+                        }
+                        if flags.iter().fold(0u8, |a, &f| a | f) == 0 {
+                            alive = false;
+                            break;
+                        }
+                    }
+                }
+                if !alive {
+                    x += LANES;
+                    continue;
+                }
+                for i in 0..LANES {
+                    flags[i] = ab[i] | ad[i];
+                }
+            } else {
+                flags[..m].iter_mut().for_each(|f| *f = 1);
+            }
+            // Scan the flags eight at a time (flags are 0 or 1 per byte).
+            for (wi, word) in flags.chunks_exact(8).enumerate() {
+                let mut bits = u64::from_le_bytes(word.try_into().expect("8 bytes"));
+                while bits != 0 {
+                    let i = wi * 8 + (bits.trailing_zeros() / 8) as usize;
+                    bits &= bits - 1;
+                    if i < m {
+                        candidates.push(x + i);
+                    }
+                }
+            }
+            x += LANES;
         }
         let slot = y % 3;
         scores[slot].iter_mut().for_each(|x| *x = 0);
         cand[slot].clear();
-        for x in 0..n {
-            let (b, d) = (bright[x], dark[x]);
-            if (b | d) == 0 {
-                continue;
-            }
-            if has_arc9(b) || has_arc9(d) {
+        let num_certain = certain.len();
+        for (idx, &x) in certain.iter().chain(candidates.iter()).enumerate() {
+            let is_corner = idx < num_certain || {
+                let c = centre[x];
+                let hi = c.saturating_add(threshold);
+                let lo = c.saturating_sub(threshold);
+                let (mut b, mut d) = (0u16, 0u16);
+                for (k, &off) in offsets.iter().enumerate() {
+                    let p = data[(base as isize + x as isize + off) as usize];
+                    b |= ((p > hi) as u16) << k;
+                    d |= ((p < lo) as u16) << k;
+                }
+                has_arc9(b) || has_arc9(d)
+            };
+            if is_corner {
                 let u = x + 3;
                 if nonmax_suppression {
                     scores[slot][u] = fast_score(img, u, y, threshold);
@@ -201,6 +334,208 @@ pub fn fast9_level(
         }
     }
     out
+}
+
+/// x86-64 SIMD FAST test (as OpenCV's): a pre-test — a FAST-9 corner needs two adjacent compass
+/// pixels (0 & 4, 4 & 8, 8 & 12 or 12 & 0) both brighter or both darker, since any arc of 9
+/// contiguous circle pixels contains two adjacent compass pixels — then, for chunks with a
+/// survivor, the full arc test on all lanes. Corner columns (relative to the first detection
+/// column) go to `certain`; the columns of the row's tail (shorter than a vector) go to `out`
+/// for the scalar exact test. Unsigned byte comparisons are done as signed ones after flipping
+/// the top bit.
+#[cfg(target_arch = "x86_64")]
+mod simd {
+    use std::arch::x86_64::*;
+
+    macro_rules! pretest {
+        ($lanes:expr, $ty:ty, $load:ident, $set1:ident, $xor:ident, $adds:ident, $subs:ident,
+         $cmpgt:ident, $and:ident, $or:ident, $movemask:ident, $sub:ident, $max:ident,
+         $data:ident, $base:ident, $offsets:ident, $n:ident, $threshold:ident, $certain:ident,
+         $out:ident) => {{
+            let delta = $set1(i8::MIN);
+            let t = $set1($threshold as i8);
+            let p = $data.as_ptr();
+            let mut x = 0usize;
+            while x + $lanes <= $n {
+                let at = (p as isize + ($base + x) as isize) as *const u8;
+                let c = $load(at as *const $ty);
+                let v1 = $xor($adds(c, t), delta);
+                let v0 = $xor($subs(c, t), delta);
+                let x0 = $xor($load(at.offset($offsets[0]) as *const $ty), delta);
+                let x1 = $xor($load(at.offset($offsets[4]) as *const $ty), delta);
+                let x2 = $xor($load(at.offset($offsets[8]) as *const $ty), delta);
+                let x3 = $xor($load(at.offset($offsets[12]) as *const $ty), delta);
+                let mut dark = $and($cmpgt(v0, x0), $cmpgt(v0, x1));
+                let mut bright = $and($cmpgt(x0, v1), $cmpgt(x1, v1));
+                dark = $or(dark, $and($cmpgt(v0, x1), $cmpgt(v0, x2)));
+                bright = $or(bright, $and($cmpgt(x1, v1), $cmpgt(x2, v1)));
+                dark = $or(dark, $and($cmpgt(v0, x2), $cmpgt(v0, x3)));
+                bright = $or(bright, $and($cmpgt(x2, v1), $cmpgt(x3, v1)));
+                dark = $or(dark, $and($cmpgt(v0, x3), $cmpgt(v0, x0)));
+                bright = $or(bright, $and($cmpgt(x3, v1), $cmpgt(x0, v1)));
+                let pre = $movemask($or(dark, bright)) as u32;
+                if pre == 0 {
+                    x += $lanes;
+                    continue;
+                }
+                // Full test for all lanes: lengths of runs of consecutive dark / bright pixels
+                // over the circle walked 25 times (16 + 8 to close the wrap-around); a corner
+                // has a run of at least 9.
+                let zero = $set1(0);
+                let (mut c0, mut c1, mut m0, mut m1) = (zero, zero, zero, zero);
+                for k in 0..25 {
+                    let xk = $xor($load(at.offset($offsets[k % 16]) as *const $ty), delta);
+                    let d0 = $cmpgt(v0, xk);
+                    let d1 = $cmpgt(xk, v1);
+                    c0 = $and($sub(c0, d0), d0);
+                    c1 = $and($sub(c1, d1), d1);
+                    m0 = $max(m0, c0);
+                    m1 = $max(m1, c1);
+                }
+                let k8 = $set1(8);
+                let mut mask = pre & $movemask($or($cmpgt(m0, k8), $cmpgt(m1, k8))) as u32;
+                while mask != 0 {
+                    $certain.push(x + mask.trailing_zeros() as usize);
+                    mask &= mask - 1;
+                }
+                x += $lanes;
+            }
+            // The tail goes straight to the exact test.
+            $out.extend(x..$n);
+        }};
+    }
+
+    /// Rotates the 16 i16 lanes held in `(lo, hi)` (lanes 0–7, 8–15) by `N` lanes towards
+    /// lane 0: lane `k` receives lane `(k + N) mod 16`. `B = 2N` bytes, `R = 16 − 2N`.
+    macro_rules! rot {
+        ($lo:expr, $hi:expr, $b:literal, $r:literal) => {{
+            let (lo, hi) = ($lo, $hi);
+            (
+                _mm_or_si128(_mm_srli_si128::<$b>(lo), _mm_slli_si128::<$r>(hi)),
+                _mm_or_si128(_mm_srli_si128::<$b>(hi), _mm_slli_si128::<$r>(lo)),
+            )
+        }};
+    }
+
+    /// FAST score with SSE2 (part of x86-64): `d_k = I_c − I_k` as 16 i16 lanes; minima and
+    /// maxima over the 16 circular arcs of 9 by doubling (runs of 2, 4, 8, then 9), then the
+    /// horizontal maximum of `max(min, −max)` (see `fast_score`).
+    #[inline(always)]
+    pub(super) fn score(centre: u8, p: &[u8; 16], threshold: u8) -> i32 {
+        // SAFETY: SSE2 is part of the x86-64 baseline; the load reads exactly 16 bytes.
+        unsafe {
+            let zero = _mm_setzero_si128();
+            let px = _mm_loadu_si128(p.as_ptr() as *const __m128i);
+            let c = _mm_set1_epi16(centre as i16);
+            let d_lo = _mm_sub_epi16(c, _mm_unpacklo_epi8(px, zero));
+            let d_hi = _mm_sub_epi16(c, _mm_unpackhi_epi8(px, zero));
+            let (mut mn_lo, mut mn_hi, mut mx_lo, mut mx_hi) = (d_lo, d_hi, d_lo, d_hi);
+            let (a, b) = rot!(mn_lo, mn_hi, 2, 14);
+            mn_lo = _mm_min_epi16(mn_lo, a);
+            mn_hi = _mm_min_epi16(mn_hi, b);
+            let (a, b) = rot!(mx_lo, mx_hi, 2, 14);
+            mx_lo = _mm_max_epi16(mx_lo, a);
+            mx_hi = _mm_max_epi16(mx_hi, b);
+            let (a, b) = rot!(mn_lo, mn_hi, 4, 12);
+            mn_lo = _mm_min_epi16(mn_lo, a);
+            mn_hi = _mm_min_epi16(mn_hi, b);
+            let (a, b) = rot!(mx_lo, mx_hi, 4, 12);
+            mx_lo = _mm_max_epi16(mx_lo, a);
+            mx_hi = _mm_max_epi16(mx_hi, b);
+            let (a, b) = rot!(mn_lo, mn_hi, 8, 8);
+            mn_lo = _mm_min_epi16(mn_lo, a);
+            mn_hi = _mm_min_epi16(mn_hi, b);
+            let (a, b) = rot!(mx_lo, mx_hi, 8, 8);
+            mx_lo = _mm_max_epi16(mx_lo, a);
+            mx_hi = _mm_max_epi16(mx_hi, b);
+            // Runs of 9: combine with d rotated by 8 (the two halves swapped).
+            mn_lo = _mm_min_epi16(mn_lo, d_hi);
+            mn_hi = _mm_min_epi16(mn_hi, d_lo);
+            mx_lo = _mm_max_epi16(mx_lo, d_hi);
+            mx_hi = _mm_max_epi16(mx_hi, d_lo);
+            let neg = |x| _mm_sub_epi16(zero, x);
+            let mut best = _mm_max_epi16(
+                _mm_max_epi16(mn_lo, mn_hi),
+                _mm_max_epi16(neg(mx_lo), neg(mx_hi)),
+            );
+            best = _mm_max_epi16(best, _mm_srli_si128::<8>(best));
+            best = _mm_max_epi16(best, _mm_srli_si128::<4>(best));
+            best = _mm_max_epi16(best, _mm_srli_si128::<2>(best));
+            let b = _mm_cvtsi128_si32(best) as i16;
+            b.max(threshold as i16) as i32 - 1
+        }
+    }
+
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn row_corners_avx2(
+        data: &[u8],
+        base: usize,
+        offsets: &[isize; 16],
+        n: usize,
+        threshold: u8,
+        certain: &mut Vec<usize>,
+        out: &mut Vec<usize>,
+    ) {
+        unsafe {
+            pretest!(
+                32,
+                __m256i,
+                _mm256_loadu_si256,
+                _mm256_set1_epi8,
+                _mm256_xor_si256,
+                _mm256_adds_epu8,
+                _mm256_subs_epu8,
+                _mm256_cmpgt_epi8,
+                _mm256_and_si256,
+                _mm256_or_si256,
+                _mm256_movemask_epi8,
+                _mm256_sub_epi8,
+                _mm256_max_epu8,
+                data,
+                base,
+                offsets,
+                n,
+                threshold,
+                certain,
+                out
+            )
+        }
+    }
+
+    pub(super) unsafe fn row_corners_sse2(
+        data: &[u8],
+        base: usize,
+        offsets: &[isize; 16],
+        n: usize,
+        threshold: u8,
+        certain: &mut Vec<usize>,
+        out: &mut Vec<usize>,
+    ) {
+        unsafe {
+            pretest!(
+                16,
+                __m128i,
+                _mm_loadu_si128,
+                _mm_set1_epi8,
+                _mm_xor_si128,
+                _mm_adds_epu8,
+                _mm_subs_epu8,
+                _mm_cmpgt_epi8,
+                _mm_and_si128,
+                _mm_or_si128,
+                _mm_movemask_epi8,
+                _mm_sub_epi8,
+                _mm_max_epu8,
+                data,
+                base,
+                offsets,
+                n,
+                threshold,
+                certain,
+                out
+            )
+        }
+    }
 }
 
 /// FAST-9 on every level of a pyramid (coordinates of each level).
@@ -330,6 +665,19 @@ mod tests {
                 assert!(want.contains(&(c.u as usize, c.v as usize)));
             }
             assert!(nms.len() <= want.len());
+        }
+    }
+
+    #[test]
+    fn portable_and_dispatched_paths_agree() {
+        for seed in 0..3 {
+            let img = noise_image(97, 41, seed);
+            for nms in [false, true] {
+                assert_eq!(
+                    fast9_impl::<16>(&img, 25, nms, 0, false),
+                    fast9_level(&img, 25, nms, 0)
+                );
+            }
         }
     }
 

@@ -210,7 +210,16 @@ impl<T: Copy + Default> Image<T> {
 impl GrayImage {
     /// Converts to `f32` intensities (same 0–255 scale).
     pub fn to_f32(&self) -> GrayImageF32 {
-        self.map(|p| p as f32)
+        let mut data = Vec::with_capacity(self.width * self.height);
+        for v in 0..self.height {
+            data.extend(self.row(v).iter().map(|&p| p as f32));
+        }
+        Image {
+            width: self.width,
+            height: self.height,
+            stride: self.width,
+            data,
+        }
     }
 }
 

@@ -9,12 +9,18 @@
 
 #![warn(missing_docs)]
 
+pub mod bow;
+pub mod dense;
 pub mod fast;
 pub mod image;
 pub mod interp;
 pub mod lk;
+pub mod orb;
+pub mod patch;
 pub mod pyramid;
 pub mod quadtree;
+pub mod stereo;
+pub mod tvl1;
 pub mod undistort;
 
 pub use image::{GrayImage, GrayImageF32, Image, ImageError};

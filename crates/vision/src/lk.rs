@@ -7,7 +7,8 @@
 //! `Δ = H⁻¹ Σ_x ∇Tᵀ (I(x + g) − T(x))`, `H = Σ_x ∇Tᵀ∇T` computed once per level.
 //! Coarse-to-fine: the displacement found on level `l + 1` (doubled) initialises level `l`.
 
-use crate::image::GrayImage;
+use crate::image::Image;
+use crate::interp::Pixel;
 use crate::pyramid::Pyramid;
 
 /// Parameters of [`track`].
@@ -19,8 +20,9 @@ pub struct LkParams {
     pub max_iterations: usize,
     /// Stop when the update is shorter than this (pixels of the level).
     pub epsilon: f32,
-    /// Reject a window whose structure tensor's smaller eigenvalue, divided by the window's
-    /// pixel count and by 255² (OpenCV's `minEigThreshold` convention), is below this.
+    /// Reject a window whose structure tensor's smaller eigenvalue (gradients in intensity units
+    /// per pixel), divided by the window's pixel count, is below this (OpenCV's
+    /// `minEigThreshold`).
     pub min_eigenvalue: f32,
     /// Number of pyramid levels used (≤ the pyramids' depth).
     pub levels: usize,
@@ -43,7 +45,8 @@ impl Default for LkParams {
 /// Samples the `n×n` patch whose top-left sample is at real coordinates `(x, y)` with bilinear
 /// interpolation (the weights are the same for all samples); coordinates are clamped to the
 /// image (border replication). Writes `n·n` values into `out`.
-fn sample_patch(img: &GrayImage, x: f32, y: f32, n: usize, out: &mut [f32]) {
+#[inline(always)]
+fn sample_patch<T: Pixel>(img: &Image<T>, x: f32, y: f32, n: usize, out: &mut [f32]) {
     let xf = x.floor();
     let yf = y.floor();
     let a = x - xf;
@@ -58,24 +61,35 @@ fn sample_patch(img: &GrayImage, x: f32, y: f32, n: usize, out: &mut [f32]) {
             let rb = &img.row(y0 as usize + r + 1)[x0..x0 + n + 1];
             let o = &mut out[r * n..(r + 1) * n];
             for i in 0..n {
-                o[i] = w00 * ra[i] as f32
-                    + w10 * ra[i + 1] as f32
-                    + w01 * rb[i] as f32
-                    + w11 * rb[i + 1] as f32;
+                o[i] = w00 * ra[i].to_f32()
+                    + w10 * ra[i + 1].to_f32()
+                    + w01 * rb[i].to_f32()
+                    + w11 * rb[i + 1].to_f32();
             }
         }
     } else {
-        let cx = |x: i64| x.clamp(0, w - 1) as usize;
-        let cy = |y: i64| y.clamp(0, h - 1) as usize;
-        for r in 0..n as i64 {
-            let ra = img.row(cy(y0 + r));
-            let rb = img.row(cy(y0 + r + 1));
-            for i in 0..n as i64 {
-                let (c0, c1) = (cx(x0 + i), cx(x0 + i + 1));
-                out[(r * n as i64 + i) as usize] = w00 * ra[c0] as f32
-                    + w10 * ra[c1] as f32
-                    + w01 * rb[c0] as f32
-                    + w11 * rb[c1] as f32;
+        // Border: clamp the column indices once, then gather row by row.
+        let mut small = [0usize; 64];
+        let mut large = Vec::new();
+        let cols: &mut [usize] = if n < 64 {
+            &mut small[..n + 1]
+        } else {
+            large.resize(n + 1, 0);
+            &mut large
+        };
+        for (i, c) in cols.iter_mut().enumerate() {
+            *c = (x0 + i as i64).clamp(0, w - 1) as usize;
+        }
+        for r in 0..n {
+            let ra = img.row((y0 + r as i64).clamp(0, h - 1) as usize);
+            let rb = img.row((y0 + r as i64 + 1).clamp(0, h - 1) as usize);
+            let o = &mut out[r * n..(r + 1) * n];
+            for i in 0..n {
+                let (c0, c1) = (cols[i], cols[i + 1]);
+                o[i] = w00 * ra[c0].to_f32()
+                    + w10 * ra[c1].to_f32()
+                    + w01 * rb[c0].to_f32()
+                    + w11 * rb[c1].to_f32();
             }
         }
     }
@@ -104,9 +118,10 @@ impl Work {
 
 /// Tracks one point on one level: template centred at `p` in `prev`, initial displacement `g`.
 /// Returns the refined displacement or `None` if the window is untextured.
-fn track_level(
-    prev: &GrayImage,
-    next: &GrayImage,
+#[inline(always)]
+fn track_level<T: Pixel>(
+    prev: &Image<T>,
+    next: &Image<T>,
     p: [f32; 2],
     g: [f32; 2],
     params: &LkParams,
@@ -133,15 +148,14 @@ fn track_level(
         }
     }
     let npx = (n * n) as f32;
-    let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt())
-        / npx
-        / (255.0 * 255.0);
+    let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt()) / npx;
     let det = hxx * hyy - hxy * hxy;
     if min_eig < params.min_eigenvalue || det <= f32::EPSILON {
         return None;
     }
     let (ixx, ixy, iyy) = (hyy / det, -hxy / det, hxx / det);
     let mut g = g;
+    let mut prev_step = [f32::NAN, f32::NAN];
     for _ in 0..params.max_iterations {
         let (qx, qy) = (p[0] + g[0], p[1] + g[1]);
         if !(qx > -rf
@@ -152,19 +166,46 @@ fn track_level(
             return None;
         }
         sample_patch(next, qx - rf, qy - rf, n, &mut wk.cur);
-        let (mut bx, mut by) = (0.0f32, 0.0f32);
-        for (((c, t), gx), gy) in wk.cur.iter().zip(&wk.tmpl).zip(&wk.gx).zip(&wk.gy) {
-            let e = c - t;
-            bx += gx * e;
-            by += gy * e;
+        // Lane-wise accumulators so that the reduction vectorises.
+        const L: usize = 8;
+        let mut ax = [0.0f32; L];
+        let mut ay = [0.0f32; L];
+        let full = wk.cur.len() / L * L;
+        for (((c, t), gx), gy) in wk.cur[..full]
+            .chunks_exact(L)
+            .zip(wk.tmpl[..full].chunks_exact(L))
+            .zip(wk.gx[..full].chunks_exact(L))
+            .zip(wk.gy[..full].chunks_exact(L))
+        {
+            for i in 0..L {
+                let e = c[i] - t[i];
+                ax[i] += gx[i] * e;
+                ay[i] += gy[i] * e;
+            }
+        }
+        let (mut bx, mut by) = (ax.iter().sum::<f32>(), ay.iter().sum::<f32>());
+        for i in full..wk.cur.len() {
+            let e = wk.cur[i] - wk.tmpl[i];
+            bx += wk.gx[i] * e;
+            by += wk.gy[i] * e;
         }
         let dx = ixx * bx + ixy * by;
         let dy = ixy * bx + iyy * by;
-        g[0] -= dx;
-        g[1] -= dy;
         if dx * dx + dy * dy < params.epsilon * params.epsilon {
+            g[0] -= dx;
+            g[1] -= dy;
             break;
         }
+        // Oscillation between two positions (as OpenCV): step back half way and stop.
+        if (dx + prev_step[0]).abs() < params.epsilon && (dy + prev_step[1]).abs() < params.epsilon
+        {
+            g[0] -= 0.5 * dx;
+            g[1] -= 0.5 * dy;
+            break;
+        }
+        g[0] -= dx;
+        g[1] -= dy;
+        prev_step = [dx, dy];
     }
     if g[0].is_finite() && g[1].is_finite() {
         Some(g)
@@ -184,38 +225,80 @@ pub fn track(
     initial: Option<&[[f32; 2]]>,
     params: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { track_avx2(prev, next, points, initial, params) };
+        }
+    }
+    track_impl(prev, next, points, initial, params)
+}
+
+/// [`track_impl`] compiled for AVX2 (runtime dispatch; identical arithmetic, wider vectors).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn track_avx2(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[[f32; 2]],
+    initial: Option<&[[f32; 2]]>,
+    params: &LkParams,
+) -> Vec<Option<[f32; 2]>> {
+    track_impl(prev, next, points, initial, params)
+}
+
+#[inline(always)]
+fn track_impl(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[[f32; 2]],
+    initial: Option<&[[f32; 2]]>,
+    params: &LkParams,
+) -> Vec<Option<[f32; 2]>> {
     let levels = params.levels.min(prev.len()).min(next.len()).max(1);
+    let (prev_f, next_f) = (&prev.levels, &next.levels);
     let mut wk = Work::new(2 * params.window_radius + 1);
     let (w0, h0) = (
         next.levels[0].width() as f32,
         next.levels[0].height() as f32,
     );
-    points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            if !(p[0].is_finite() && p[1].is_finite()) {
-                return None;
-            }
-            let pred = initial.and_then(|v| v.get(i)).copied().unwrap_or(*p);
-            let top = levels - 1;
-            let s = (1u32 << top) as f32;
-            let mut g = [(pred[0] - p[0]) / s, (pred[1] - p[1]) / s];
-            for l in (0..levels).rev() {
-                let s = (1u32 << l) as f32;
-                let pl = [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
-                g = track_level(&prev.levels[l], &next.levels[l], pl, g, params, &mut wk)?;
-                if l > 0 {
-                    g = [g[0] * 2.0, g[1] * 2.0];
+    // A plain loop (no closures) so that everything inlines into the AVX2 instance.
+    let mut out = Vec::with_capacity(points.len());
+    'points: for (i, p) in points.iter().enumerate() {
+        if !(p[0].is_finite() && p[1].is_finite()) {
+            out.push(None);
+            continue;
+        }
+        let pred = match initial {
+            Some(v) if i < v.len() => v[i],
+            _ => *p,
+        };
+        let top = levels - 1;
+        let s = (1u32 << top) as f32;
+        let mut g = [(pred[0] - p[0]) / s, (pred[1] - p[1]) / s];
+        for l in (0..levels).rev() {
+            let s = (1u32 << l) as f32;
+            let pl = [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
+            match track_level(&prev_f[l], &next_f[l], pl, g, params, &mut wk) {
+                Some(x) => g = x,
+                None => {
+                    out.push(None);
+                    continue 'points;
                 }
             }
-            let q = [p[0] + g[0], p[1] + g[1]];
-            if q[0] < 0.0 || q[1] < 0.0 || q[0] > w0 - 1.0 || q[1] > h0 - 1.0 {
-                return None;
+            if l > 0 {
+                g = [g[0] * 2.0, g[1] * 2.0];
             }
-            Some(q)
-        })
-        .collect()
+        }
+        let q = [p[0] + g[0], p[1] + g[1]];
+        if q[0] < 0.0 || q[1] < 0.0 || q[0] > w0 - 1.0 || q[1] > h0 - 1.0 {
+            out.push(None);
+        } else {
+            out.push(Some(q));
+        }
+    }
+    out
 }
 
 /// [`track`] followed by tracking the results back from `next` to `prev`; a track is kept only
@@ -246,6 +329,7 @@ pub fn track_forward_backward(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::image::GrayImage;
 
     /// A smooth textured test image, shifted by `(dx, dy)`.
     fn texture(w: usize, h: usize, dx: f32, dy: f32) -> GrayImage {

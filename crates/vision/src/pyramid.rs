@@ -1,6 +1,6 @@
 //! Image pyramids by half-sampling, resizing and Gaussian smoothing.
 
-use crate::image::{GrayImage, Image, ImageError};
+use crate::image::{GrayImage, ImageError};
 
 /// Half-samples an 8-bit image: `out(u, v) = ⌊(I(2u,2v) + I(2u+1,2v) + I(2u,2v+1) + I(2u+1,2v+1) + 2)/4⌋`,
 /// of size `⌊w/2⌋ × ⌊h/2⌋` (the last column/row of odd-sized images is dropped).
@@ -88,6 +88,28 @@ pub fn resize_bilinear(
     width: usize,
     height: usize,
 ) -> Result<GrayImage, ImageError> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { resize_avx2(img, width, height) };
+        }
+    }
+    resize_impl(img, width, height)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn resize_avx2(
+    img: &GrayImage,
+    width: usize,
+    height: usize,
+) -> Result<GrayImage, ImageError> {
+    resize_impl(img, width, height)
+}
+
+#[inline(always)]
+fn resize_impl(img: &GrayImage, width: usize, height: usize) -> Result<GrayImage, ImageError> {
     if img.is_empty() || width == 0 || height == 0 {
         return Err(ImageError::TooSmall {
             width: img.width(),
@@ -99,27 +121,33 @@ pub fn resize_bilinear(
     let sy = img.height() as f32 / height as f32;
     let max_u = (img.width() - 1) as f32;
     let max_v = (img.height() - 1) as f32;
-    // Precompute column taps (fixed point, 8-bit weights).
-    let cols: Vec<(usize, usize, u32)> = (0..width)
-        .map(|x| {
-            let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, max_u);
-            let x0 = fx.floor() as usize;
-            let x1 = (x0 + 1).min(img.width() - 1);
-            (x0, x1, ((fx - x0 as f32) * 256.0).round() as u32)
-        })
-        .collect();
+    // Column taps (fixed point, 8-bit weights).
+    let mut x0s = Vec::with_capacity(width);
+    let mut x1s = Vec::with_capacity(width);
+    let mut wxs = Vec::with_capacity(width);
+    for x in 0..width {
+        let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, max_u);
+        let x0 = fx.floor() as usize;
+        x0s.push(x0);
+        x1s.push((x0 + 1).min(img.width() - 1));
+        wxs.push(((fx - x0 as f32) * 256.0).round() as u32);
+    }
     let mut out = GrayImage::new(width, height);
+    let mut blend = vec![0u16; img.width()];
     for y in 0..height {
         let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, max_v);
         let y0 = fy.floor() as usize;
         let y1 = (y0 + 1).min(img.height() - 1);
         let wy = ((fy - y0 as f32) * 256.0).round() as u32;
-        let (r0, r1) = (img.row(y0), img.row(y1));
+        // Vertical blend of the two source rows (vectorised), then horizontal taps.
+        for ((bl, &a), &b) in blend.iter_mut().zip(img.row(y0)).zip(img.row(y1)) {
+            // ≤ 255·256 = 65280: fits u16.
+            *bl = (a as u32 * (256 - wy) + b as u32 * wy) as u16;
+        }
         let o = out.row_mut(y);
-        for (px, &(x0, x1, wx)) in o.iter_mut().zip(&cols) {
-            let top = r0[x0] as u32 * (256 - wx) + r0[x1] as u32 * wx;
-            let bot = r1[x0] as u32 * (256 - wx) + r1[x1] as u32 * wx;
-            *px = ((top * (256 - wy) + bot * wy + (1 << 15)) >> 16) as u8;
+        for (k, px) in o.iter_mut().enumerate() {
+            let (a, b, wx) = (blend[x0s[k]] as u32, blend[x1s[k]] as u32, wxs[k]);
+            *px = ((a * (256 - wx) + b * wx + (1 << 15)) >> 16) as u8;
         }
     }
     Ok(out)
@@ -128,38 +156,73 @@ pub fn resize_bilinear(
 /// Separable Gaussian blur with standard deviation `sigma` and kernel radius `⌈3σ⌉`, borders
 /// replicated. Works for any non-empty size (including 1×1).
 pub fn gaussian_blur(img: &GrayImage, sigma: f32) -> GrayImage {
-    if img.is_empty() || sigma <= 0.0 {
-        return img.clone();
-    }
-    let r = (3.0 * sigma).ceil() as i64;
-    let mut k: Vec<f32> = (-r..=r)
-        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let s: f32 = k.iter().sum();
-    k.iter_mut().for_each(|x| *x /= s);
-    let (w, h) = (img.width() as i64, img.height() as i64);
-    let mut tmp = Image::<f32>::new(img.width(), img.height());
-    for y in 0..h {
-        let row = img.row(y as usize);
-        let o = tmp.row_mut(y as usize);
-        for x in 0..w {
-            let mut acc = 0.0;
-            for (i, kv) in k.iter().enumerate() {
-                let xx = (x + i as i64 - r).clamp(0, w - 1) as usize;
-                acc += kv * row[xx] as f32;
-            }
-            o[x as usize] = acc;
+    gaussian_blur_radius(img, sigma, (3.0 * sigma).ceil().max(0.0) as usize)
+}
+
+/// Separable Gaussian blur with standard deviation `sigma` truncated to radius `radius`
+/// (kernel `(2r+1)` taps, e.g. OpenCV's 7×7, `σ = 2` for ORB is `r = 3`), borders replicated.
+/// Fixed-point: the taps are quantised to 1/256 and the two passes rounded once.
+/// (Runtime-dispatched to an AVX2 build of the same code where available.)
+pub fn gaussian_blur_radius(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { blur_avx2(img, sigma, radius) };
         }
     }
-    let mut out = GrayImage::new(img.width(), img.height());
+    blur_impl(img, sigma, radius)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn blur_avx2(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
+    blur_impl(img, sigma, radius)
+}
+
+#[inline(always)]
+fn blur_impl(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
+    if img.is_empty() || sigma <= 0.0 || radius == 0 {
+        return img.clone();
+    }
+    let r = radius as i64;
+    let kf: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let s: f32 = kf.iter().sum();
+    let mut k: Vec<u16> = kf.iter().map(|x| (x / s * 256.0).round() as u16).collect();
+    // Make the taps sum to exactly 256 by adjusting the centre tap.
+    let total: i32 = k.iter().map(|&x| x as i32).sum();
+    k[radius] = (k[radius] as i32 + 256 - total) as u16;
+    let (w, h) = (img.width(), img.height());
+    let mut tmp = vec![0u16; w * h];
+    let mut buf = vec![0u8; w + 2 * radius];
     for y in 0..h {
-        for x in 0..w as usize {
-            let mut acc = 0.0;
-            for (i, kv) in k.iter().enumerate() {
-                let yy = (y + i as i64 - r).clamp(0, h - 1) as usize;
-                acc += kv * tmp.get(x, yy);
+        let row = img.row(y);
+        buf[radius..radius + w].copy_from_slice(row);
+        for i in 0..radius {
+            buf[i] = row[0];
+            buf[radius + w + i] = row[w - 1];
+        }
+        let acc = &mut tmp[y * w..(y + 1) * w];
+        for (j, &kj) in k.iter().enumerate() {
+            for (a, &p) in acc.iter_mut().zip(&buf[j..j + w]) {
+                *a += kj * p as u16;
             }
-            out.set(x, y as usize, (acc + 0.5).clamp(0.0, 255.0) as u8);
+        }
+    }
+    let mut out = GrayImage::new(w, h);
+    let mut acc = vec![0u32; w];
+    for y in 0..h as i64 {
+        acc.iter_mut().for_each(|a| *a = 0);
+        for (j, &kj) in k.iter().enumerate() {
+            let yy = (y + j as i64 - r).clamp(0, h as i64 - 1) as usize;
+            for (a, &t) in acc.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                *a += kj as u32 * t as u32;
+            }
+        }
+        for (o, &a) in out.row_mut(y as usize).iter_mut().zip(&acc) {
+            *o = ((a + 32768) >> 16) as u8;
         }
     }
     out

@@ -1,0 +1,355 @@
+//! Patch matching (thesis §3.4.2, PTAM style): warped template patches predicted from a pose,
+//! zero-mean SSD, guided search restricted to FAST corners inside a radius, and sub-pixel
+//! refinement by inverse-compositional alignment.
+
+use crate::fast::Corner;
+use crate::image::{GrayImage, Image};
+use crate::interp::{Pixel, bilinear};
+use geom::{CameraModel, PinholeCamera};
+use lie::{LieGroup, Se3};
+use nalgebra::{Matrix2, Vector2};
+
+/// Side length of template patches (8×8, as PTAM).
+pub const PATCH_SIZE: usize = 8;
+const N: usize = PATCH_SIZE * PATCH_SIZE;
+
+/// An `8×8` template patch (intensities, row-major), with its mean.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Patch {
+    /// Samples; sample `(i, j)` lies at offset `o = (j − 3.5, i − 3.5)` from the patch centre.
+    pub data: [f32; N],
+    /// Mean intensity.
+    pub mean: f32,
+}
+
+impl Patch {
+    fn from_data(data: [f32; N]) -> Self {
+        let mean = data.iter().sum::<f32>() / N as f32;
+        Self { data, mean }
+    }
+
+    /// The axis-aligned patch centred at `(u, v)` of `img` (bilinear), or `None` if it leaves
+    /// the image.
+    pub fn extract<T: Pixel>(img: &Image<T>, u: f32, v: f32) -> Option<Self> {
+        Self::extract_warped(img, u, v, &Matrix2::identity())
+    }
+
+    /// The warped template: sample at offset `o` is `img(c + A·o)` with `A = ∂(source pixel)/∂(target
+    /// pixel)`, so that the patch looks as the region around `c` would look in the target image.
+    /// `None` if any sample leaves the image.
+    pub fn extract_warped<T: Pixel>(
+        img: &Image<T>,
+        u: f32,
+        v: f32,
+        a: &Matrix2<f64>,
+    ) -> Option<Self> {
+        let mut data = [0.0f32; N];
+        let h = (PATCH_SIZE as f32 - 1.0) / 2.0;
+        let (a00, a01, a10, a11) = (
+            a[(0, 0)] as f32,
+            a[(0, 1)] as f32,
+            a[(1, 0)] as f32,
+            a[(1, 1)] as f32,
+        );
+        for i in 0..PATCH_SIZE {
+            for j in 0..PATCH_SIZE {
+                let (ox, oy) = (j as f32 - h, i as f32 - h);
+                data[i * PATCH_SIZE + j] =
+                    bilinear(img, u + a00 * ox + a01 * oy, v + a10 * ox + a11 * oy)?;
+            }
+        }
+        Some(Self::from_data(data))
+    }
+}
+
+/// Zero-mean sum of squared differences `Σ((a − ā) − (b − b̄))²` (invariant to an intensity
+/// offset).
+pub fn zmssd(a: &Patch, b: &Patch) -> f32 {
+    let d = a.mean - b.mean;
+    a.data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y - d) * (x - y - d))
+        .sum()
+}
+
+/// Normalised SSD `Σ((a − ā)/‖a − ā‖ − (b − b̄)/‖b − b̄‖)² = 2 − 2·NCC`, in `[0, 4]` (invariant
+/// to gain and offset); 4 if a patch is constant.
+pub fn nssd(a: &Patch, b: &Patch) -> f32 {
+    let na: f32 = a
+        .data
+        .iter()
+        .map(|x| (x - a.mean).powi(2))
+        .sum::<f32>()
+        .sqrt();
+    let nb: f32 = b
+        .data
+        .iter()
+        .map(|x| (x - b.mean).powi(2))
+        .sum::<f32>()
+        .sqrt();
+    if na < 1e-6 || nb < 1e-6 {
+        return 4.0;
+    }
+    a.data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| ((x - a.mean) / na - (y - b.mean) / nb).powi(2))
+        .sum()
+}
+
+/// The affine warp of a reference patch predicted from a relative pose (PTAM): the reference
+/// pixel `u_ref` and its neighbours `u_ref + (1, 0)`, `u_ref + (0, 1)` are back-projected at
+/// `depth` (a fronto-parallel plane in the reference camera, thesis eq. 3.5), moved by
+/// `cur_from_ref` and projected into the current camera (thesis eq. 3.4). Returns the predicted
+/// current pixel and `A = ∂u_ref/∂u_cur` (the inverse of the finite-difference Jacobian), ready
+/// for [`Patch::extract_warped`] on the reference image. `None` if a point falls behind the
+/// camera or the warp is singular.
+pub fn affine_from_pose(
+    ref_camera: &PinholeCamera,
+    cur_camera: &impl CameraModel,
+    u_ref: &Vector2<f64>,
+    depth: f64,
+    cur_from_ref: &Se3,
+) -> Option<(Vector2<f64>, Matrix2<f64>)> {
+    let proj = |p: Vector2<f64>| -> Option<Vector2<f64>> {
+        let y = ref_camera.unproject_depth(&p, depth).ok()?;
+        cur_camera.project(&cur_from_ref.act(&y)).ok()
+    };
+    let c = proj(*u_ref)?;
+    let cu = proj(u_ref + Vector2::new(1.0, 0.0))?;
+    let cv = proj(u_ref + Vector2::new(0.0, 1.0))?;
+    let j = Matrix2::from_columns(&[cu - c, cv - c]);
+    Some((c, j.try_inverse()?))
+}
+
+/// The best match of a guided search.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PatchMatch {
+    /// Matched position (sub-pixel if refined).
+    pub u: f32,
+    /// Matched row.
+    pub v: f32,
+    /// ZMSSD of the best corner (before refinement).
+    pub zmssd: f32,
+    /// Index of the winning corner in the input slice.
+    pub corner: usize,
+}
+
+/// Guided search (PTAM): among the FAST `corners` of `img` within `radius` of `predicted`, find
+/// the one whose axis-aligned patch has the lowest [`zmssd`] to `template`; accept it if below
+/// `max_zmssd`.
+pub fn guided_search(
+    template: &Patch,
+    img: &GrayImage,
+    corners: &[Corner],
+    predicted: [f32; 2],
+    radius: f32,
+    max_zmssd: f32,
+) -> Option<PatchMatch> {
+    let mut best: Option<PatchMatch> = None;
+    let r2 = radius * radius;
+    for (i, c) in corners.iter().enumerate() {
+        let (du, dv) = (c.u - predicted[0], c.v - predicted[1]);
+        if du * du + dv * dv > r2 {
+            continue;
+        }
+        let Some(p) = Patch::extract(img, c.u, c.v) else {
+            continue;
+        };
+        let s = zmssd(template, &p);
+        if s < max_zmssd && best.is_none_or(|b| s < b.zmssd) {
+            best = Some(PatchMatch {
+                u: c.u,
+                v: c.v,
+                zmssd: s,
+                corner: i,
+            });
+        }
+    }
+    best
+}
+
+/// Sub-pixel refinement of a match by inverse-compositional Gauss-Newton on the translation,
+/// with the mean difference removed (as ZMSSD): minimises
+/// `Σ_o ((I(c + o) − Ī) − (T(o) − T̄))²` over `c`, starting at `start`, using the template's
+/// gradient (computed from a 10×10 warped sample, see [`template_with_gradient`]).
+/// Returns the refined centre, or `None` if it leaves the image or moves more than 2 pixels.
+pub fn refine_subpixel(
+    tg: &TemplateWithGradient,
+    img: &GrayImage,
+    start: [f32; 2],
+    iterations: usize,
+) -> Option<[f32; 2]> {
+    let (mut hxx, mut hxy, mut hyy) = (0.0f32, 0.0f32, 0.0f32);
+    for k in 0..N {
+        hxx += tg.gx[k] * tg.gx[k];
+        hxy += tg.gx[k] * tg.gy[k];
+        hyy += tg.gy[k] * tg.gy[k];
+    }
+    let det = hxx * hyy - hxy * hxy;
+    if det <= 1e-6 {
+        return None;
+    }
+    let mut c = start;
+    for _ in 0..iterations {
+        let p = Patch::extract(img, c[0], c[1])?;
+        let d = p.mean - tg.patch.mean;
+        let (mut bx, mut by) = (0.0f32, 0.0f32);
+        for k in 0..N {
+            let e = p.data[k] - tg.patch.data[k] - d;
+            bx += tg.gx[k] * e;
+            by += tg.gy[k] * e;
+        }
+        let dx = (hyy * bx - hxy * by) / det;
+        let dy = (hxx * by - hxy * bx) / det;
+        c[0] -= dx;
+        c[1] -= dy;
+        if (c[0] - start[0]).hypot(c[1] - start[1]) > 2.0 {
+            return None;
+        }
+        if dx * dx + dy * dy < 1e-6 {
+            break;
+        }
+    }
+    Some(c)
+}
+
+/// A template patch with its central-difference gradients (for [`refine_subpixel`]).
+#[derive(Debug, Clone)]
+pub struct TemplateWithGradient {
+    /// The template.
+    pub patch: Patch,
+    /// `∂T/∂u` per sample.
+    pub gx: [f32; N],
+    /// `∂T/∂v` per sample.
+    pub gy: [f32; N],
+}
+
+/// Samples the warped template around `(u, v)` of `img` (see [`Patch::extract_warped`]) together
+/// with its gradient in target-pixel units, from a 10×10 sampling (one extra ring).
+pub fn template_with_gradient<T: Pixel>(
+    img: &Image<T>,
+    u: f32,
+    v: f32,
+    a: &Matrix2<f64>,
+) -> Option<TemplateWithGradient> {
+    const M: usize = PATCH_SIZE + 2;
+    let mut big = [0.0f32; M * M];
+    let h = (M as f32 - 1.0) / 2.0;
+    let (a00, a01, a10, a11) = (
+        a[(0, 0)] as f32,
+        a[(0, 1)] as f32,
+        a[(1, 0)] as f32,
+        a[(1, 1)] as f32,
+    );
+    for i in 0..M {
+        for j in 0..M {
+            let (ox, oy) = (j as f32 - h, i as f32 - h);
+            big[i * M + j] = bilinear(img, u + a00 * ox + a01 * oy, v + a10 * ox + a11 * oy)?;
+        }
+    }
+    let mut data = [0.0f32; N];
+    let mut gx = [0.0f32; N];
+    let mut gy = [0.0f32; N];
+    for i in 0..PATCH_SIZE {
+        for j in 0..PATCH_SIZE {
+            let c = (i + 1) * M + j + 1;
+            data[i * PATCH_SIZE + j] = big[c];
+            gx[i * PATCH_SIZE + j] = 0.5 * (big[c + 1] - big[c - 1]);
+            gy[i * PATCH_SIZE + j] = 0.5 * (big[c + M] - big[c - M]);
+        }
+    }
+    Some(TemplateWithGradient {
+        patch: Patch::from_data(data),
+        gx,
+        gy,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fast::fast9;
+    use nalgebra::{Vector3, Vector6};
+
+    fn texture(w: usize, h: usize, f: impl Fn(f32, f32) -> (f32, f32)) -> GrayImage {
+        GrayImage::from_fn(w, h, |u, v| {
+            let (x, y) = f(u as f32, v as f32);
+            let s = 128.0
+                + 70.0 * (x * 0.35).sin() * (y * 0.29).cos()
+                + 50.0 * ((x * 0.13 + y * 0.21).sin() > 0.3) as i32 as f32;
+            s.clamp(0.0, 255.0) as u8
+        })
+    }
+
+    #[test]
+    fn guided_search_and_refinement_find_a_shifted_point() {
+        let a = texture(120, 100, |x, y| (x, y));
+        // b(x) = a(x − t): content moves by t = (2.3, −1.6).
+        let b = texture(120, 100, |x, y| (x - 2.3, y + 1.6));
+        let corners_a = fast9(&a, 15, true);
+        let corners_b = fast9(&b, 15, true);
+        assert!(!corners_a.is_empty());
+        let mut ok = 0;
+        let mut tried = 0;
+        for c in corners_a
+            .iter()
+            .filter(|c| c.u > 15.0 && c.v > 15.0 && c.u < 105.0 && c.v < 85.0)
+            .take(20)
+        {
+            tried += 1;
+            let tg = template_with_gradient(&a, c.u, c.v, &Matrix2::identity()).unwrap();
+            let pred = [c.u + 2.0, c.v - 2.0];
+            if let Some(m) = guided_search(&tg.patch, &b, &corners_b, pred, 4.0, 1e9)
+                && let Some(r) = refine_subpixel(&tg, &b, [m.u, m.v], 20)
+                && (r[0] - c.u - 2.3).abs() < 0.2
+                && (r[1] - c.v + 1.6).abs() < 0.2
+            {
+                ok += 1;
+            }
+        }
+        assert!(ok as f32 >= 0.7 * tried as f32, "{ok}/{tried}");
+    }
+
+    #[test]
+    fn warped_template_matches_a_zoomed_view() {
+        // The current image is the reference zoomed by 1.25 about (60, 50): u_cur − c = 1.25 (u_ref − c).
+        let reference = texture(120, 100, |x, y| (x, y));
+        let current = texture(120, 100, |x, y| {
+            (60.0 + (x - 60.0) / 1.25, 50.0 + (y - 50.0) / 1.25)
+        });
+        let a = Matrix2::identity() / 1.25; // ∂u_ref/∂u_cur
+        let (ur, vr) = (70.0f32, 58.0f32);
+        let (uc, vc) = (60.0 + (ur - 60.0) * 1.25, 50.0 + (vr - 50.0) * 1.25);
+        let warped = Patch::extract_warped(&reference, ur, vr, &a).unwrap();
+        let plain = Patch::extract(&reference, ur, vr).unwrap();
+        let target = Patch::extract(&current, uc, vc).unwrap();
+        assert!(zmssd(&warped, &target) < 0.5 * zmssd(&plain, &target));
+        assert!(nssd(&warped, &target) < nssd(&plain, &target));
+        assert!((nssd(&target, &target)).abs() < 1e-5);
+    }
+
+    #[test]
+    fn affine_from_pose_matches_pure_scale() {
+        let cam = PinholeCamera::new(300.0, 300.0, 160.0, 120.0);
+        // Moving 1 m towards a plane at 4 m magnifies by 4/3.
+        let cur_from_ref = Se3::exp(&Vector6::new(0.0, 0.0, -1.0, 0.0, 0.0, 0.0));
+        let (c, a) =
+            affine_from_pose(&cam, &cam, &Vector2::new(160.0, 120.0), 4.0, &cur_from_ref).unwrap();
+        assert!((c - Vector2::new(160.0, 120.0)).norm() < 1e-9);
+        assert!((a - Matrix2::identity() * 0.75).norm() < 1e-9);
+        let behind = Se3::exp(&Vector6::new(0.0, 0.0, -5.0, 0.0, 0.0, 0.0));
+        assert!(affine_from_pose(&cam, &cam, &Vector2::new(160.0, 120.0), 4.0, &behind).is_none());
+        let _ = Vector3::<f64>::zeros();
+    }
+
+    #[test]
+    fn patches_near_the_border_are_none() {
+        let img = GrayImage::filled(5, 5, 1);
+        assert!(Patch::extract(&img, 2.0, 2.0).is_none());
+        assert!(
+            template_with_gradient(&GrayImage::new(1, 1), 0.0, 0.0, &Matrix2::identity()).is_none()
+        );
+    }
+}

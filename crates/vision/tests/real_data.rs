@@ -1,0 +1,378 @@
+//! Real-data checks of the front-end on `shared/data` (skipped with a message if absent).
+//! Heavy measurements are `#[ignore]`d: run them with
+//! `cargo test --release -p vision --test real_data -- --ignored --nocapture`.
+
+mod common;
+
+use common::*;
+use lie::{LieGroup, Se3};
+use std::time::Instant;
+use vision::bow::{Database, Vocabulary};
+use vision::dense::{DenseParams, align};
+use vision::image::{Image, load_gray_u8};
+use vision::orb::{Descriptor, OrbParams, detect_and_describe};
+use vision::pyramid::Pyramid;
+use vision::stereo::{StereoParams, block_match, disparity_to_depth};
+
+#[test]
+fn dbow_vocabularies_load() {
+    let Some(dir) = data_dir("bow_vocabulary") else {
+        return;
+    };
+    // Node and word counts as stated in the data's PROVENANCE.md (root not counted there).
+    for (file, nodes, words) in [
+        ("slambook2_ch11_vocabulary_k10_L5.yml.gz", 6162, 4983),
+        ("kimera_small_voc_k9_L3.yml.gz", 781, 692),
+    ] {
+        let v = Vocabulary::load_dbow_yaml(dir.join(file)).unwrap();
+        assert_eq!(v.nodes.len() - 1, nodes, "{file}");
+        assert_eq!(v.num_words(), words, "{file}");
+        // Every word is a leaf and every leaf a word.
+        for (i, n) in v.nodes.iter().enumerate().skip(1) {
+            assert_eq!(n.children.is_empty(), n.word.is_some(), "{file} node {i}");
+        }
+        // Transforming descriptors works with a read vocabulary.
+        let d: Vec<Descriptor> = (0..50u64)
+            .map(|i| [i * 7919, i * 104729, !i, i << 13])
+            .collect();
+        let bv = v.transform(&d);
+        let s: f64 = bv.iter().map(|x| x.1).sum();
+        assert!(bv.is_empty() || (s - 1.0).abs() < 1e-9);
+    }
+}
+
+#[test]
+fn euroc_images_decode_and_fast_runs() {
+    let Some(root) = data_dir("euroc_v1_01_easy_micro") else {
+        return;
+    };
+    let rig = EurocStereo::load(&root);
+    let img = rig.left_raw(0);
+    assert_eq!((img.width(), img.height()), (752, 480));
+    let pyr = Pyramid::new(&img, 4, 8).unwrap();
+    let corners = vision::fast::fast9_pyramid(&pyr, 20, true);
+    assert!(corners[0].len() > 100, "{} corners", corners[0].len());
+    // 16-bit PNG depth (7-Scenes) decodes to millimetres.
+    if let Some(ss) = data_dir("seven_scenes_redkitchen_1000") {
+        let d = vision::image::load_u16(ss.join("depth/frame-000000.depth.png")).unwrap();
+        let valid: Vec<u16> = d
+            .data()
+            .iter()
+            .copied()
+            .filter(|&x| x > 0 && x < 65535)
+            .collect();
+        let mean = valid.iter().map(|&x| x as f64).sum::<f64>() / valid.len() as f64;
+        assert!((500.0..5000.0).contains(&mean), "mean depth {mean} mm");
+        let rgb = load_gray_u8(ss.join("rgb/frame-000000.color.jpg")).unwrap();
+        assert_eq!((rgb.width(), rgb.height()), (640, 480));
+    }
+}
+
+/// Evaluates our stereo matcher on the three Middlebury pairs (non-occluded mask derived from
+/// the left ground truth, see `nonocc_mask`).
+#[test]
+fn middlebury_stereo_bad_pixel_rates() {
+    let Some(dir) = data_dir("middlebury_stereo") else {
+        return;
+    };
+    for (name, l, r, gt, scale, ndisp) in MIDDLEBURY {
+        let d = dir.join(name);
+        let left = load_gray_u8(d.join(l)).unwrap();
+        let right = load_gray_u8(d.join(r)).unwrap();
+        let gt_raw = load_gray_u8(d.join(gt)).unwrap();
+        let gt = gt_raw.map(|x| x as f32 / scale);
+        let mask = nonocc_mask(&gt);
+        let params = StereoParams {
+            max_disparity: ndisp - 1,
+            ..Default::default()
+        };
+        let t = Instant::now();
+        let disp = block_match(&left, &right, &params).unwrap();
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        let (bad, density) = bad_pixel_rate(&disp, &gt, &mask);
+        println!(
+            "{name}: bad pixels (>1 px, invalid = bad) {:.1} %, density {:.1} %, {ms:.1} ms",
+            bad * 100.0,
+            density * 100.0
+        );
+        // Sanity bound only; the comparison with OpenCV's StereoBM is bench/vision.
+        assert!(bad < 0.5, "{name}: {bad}");
+    }
+}
+
+/// Dense photometric alignment on EuRoC with depth from our stereo (issue 8: within 1 cm and
+/// 0.5° of the ground truth).
+///
+/// The micro sequence is static (the MAV sits on the ground for all 95 frames: ground-truth
+/// motion between consecutive frames is ~0.1 mm), so two non-trivial relative poses are used:
+/// 1. reference = rectified left frame `i` (depth from the stereo pair `i`), current = rectified
+///    *right* frame `i + 1`: the true `cur_from_ref` is the ground-truth motion `i → i + 1`
+///    followed by the rectified stereo extrinsics (a pure 11 cm translation along `x`);
+/// 2. reference = left `i`, current = left `i + 1`, started from a perturbed guess
+///    (3 cm, 2.3°) away from the ground truth.
+fn euroc_dense_pairs(pairs: &[usize]) {
+    let Some(root) = data_dir("euroc_v1_01_easy_micro") else {
+        return;
+    };
+    let rig = EurocStereo::load(&root);
+    let cam = rig.rect.pinhole;
+    let params = StereoParams {
+        max_disparity: 64,
+        ..Default::default()
+    };
+    let right_from_left =
+        Se3::from_translation(nalgebra::Vector3::new(-rig.rect.baseline, 0.0, 0.0));
+    let perturbation = Se3::exp(&nalgebra::Vector6::new(
+        0.02, -0.015, 0.015, 0.02, -0.025, 0.015,
+    ));
+    for &i in pairs {
+        let (l0, r0) = rig.rectified(i);
+        let (l1, r1) = rig.rectified(i + 1);
+        let disp = block_match(&l0, &r0, &params).unwrap();
+        let depth = disparity_to_depth(&disp, cam.fx, rig.rect.baseline);
+        let motion = rig
+            .world_from_rect(i + 1)
+            .inverse()
+            .compose(&rig.world_from_rect(i));
+        for (what, current, truth, init) in [
+            (
+                "left i -> right i+1",
+                &r1,
+                right_from_left.compose(&motion),
+                Se3::identity(),
+            ),
+            (
+                "left i -> left i+1, perturbed start",
+                &l1,
+                motion,
+                perturbation.compose(&motion),
+            ),
+        ] {
+            let t = Instant::now();
+            // Coarse enough that the largest image motion (a full stereo baseline: up to
+            // 64 px of disparity) is a few pixels on the coarsest level: 64 / 2⁴ = 4 px.
+            let dense = DenseParams {
+                levels: 5,
+                ..Default::default()
+            };
+            let res = align(&l0, &depth, current, &cam, &init, &dense).unwrap();
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            let err = res.cur_from_ref.compose(&truth.inverse());
+            let start = init.compose(&truth.inverse());
+            let dt = err.translation().norm();
+            let dr = err.rotation().angle().to_degrees();
+            println!(
+                "pair {i} ({what}): true {:.1} mm {:.2}°, start error {:.1} mm {:.2}°, final error {:.2} mm {:.3}°, {} residuals, {} iterations, {ms:.0} ms",
+                truth.translation().norm() * 1e3,
+                truth.rotation().angle().to_degrees(),
+                start.translation().norm() * 1e3,
+                start.rotation().angle().to_degrees(),
+                dt * 1e3,
+                dr,
+                res.num_residuals,
+                res.iterations
+            );
+            assert!(dt < 0.01 && dr < 0.5, "pair {i} ({what}): {dt} m, {dr}°");
+        }
+    }
+}
+
+#[test]
+fn euroc_dense_alignment_one_pair() {
+    euroc_dense_pairs(&[40]);
+}
+
+#[test]
+#[ignore = "heavy: pairs spread over the sequence"]
+fn euroc_dense_alignment_many_pairs() {
+    euroc_dense_pairs(&(0..94).step_by(6).collect::<Vec<_>>());
+}
+
+/// ORB descriptors of the independent training images (slambook2's BoW images, the KITTI
+/// snippet, the TUM fragment): the vocabulary never sees the query datasets.
+fn training_descriptors(params: &OrbParams) -> Vec<Vec<Descriptor>> {
+    let mut files = Vec::new();
+    for (sub, ext) in [
+        ("slambook2_sample_images/bow_training_images", "png"),
+        ("kitti_odometry_snippets/KITTI_sequence_1/image_l", "png"),
+        ("tum_rgbd_fr1_xyz_fragment/rgb", "png"),
+    ] {
+        if let Some(d) = data_dir(sub) {
+            let mut f: Vec<_> = std::fs::read_dir(d)
+                .unwrap()
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x == ext))
+                .collect();
+            f.sort();
+            files.extend(f);
+        }
+    }
+    files
+        .iter()
+        .map(|f| {
+            detect_and_describe(&load_gray_u8(f).unwrap(), params)
+                .unwrap()
+                .1
+        })
+        .collect()
+}
+
+fn euroc_place_recognition(num_queries: usize) {
+    let Some(root) = data_dir("euroc_v1_01_easy_micro") else {
+        return;
+    };
+    let rig = EurocStereo::load(&root);
+    let params = OrbParams::default();
+    let t = Instant::now();
+    let voc = Vocabulary::train(&training_descriptors(&params), 10, 4, 10, 42).unwrap();
+    println!(
+        "vocabulary: {} words, trained in {:.1} s",
+        voc.num_words(),
+        t.elapsed().as_secs_f64()
+    );
+    let n = rig.stamps.len();
+    let mut db = Database::new();
+    for i in 0..n {
+        let (_, d) = detect_and_describe(&rig.right_raw(i), &params).unwrap();
+        db.add(voc.transform(&d));
+    }
+    let step = (n / num_queries.max(1)).max(1);
+    let (mut hits, mut total, mut qtime) = (0, 0, 0.0);
+    for i in (0..n).step_by(step) {
+        let (_, d) = detect_and_describe(&rig.left_raw(i), &params).unwrap();
+        let t = Instant::now();
+        let r = db.query(&voc.transform(&d), 1);
+        qtime += t.elapsed().as_secs_f64();
+        total += 1;
+        if r.first()
+            .is_some_and(|&(j, _)| (j as i64 - i as i64).abs() <= 2)
+        {
+            hits += 1;
+        }
+    }
+    let rate = hits as f64 / total as f64;
+    println!(
+        "EuRoC left→right place recognition: {hits}/{total} = {:.1} % top-1 within ±2 frames; {:.2} ms per query (transform + search)",
+        rate * 100.0,
+        qtime / total as f64 * 1e3
+    );
+    assert!(rate >= 0.8, "{rate}");
+}
+
+/// Issue 8's EuRoC criterion. NB: the micro sequence is static (see `euroc_dense_pairs`), so
+/// all 95 frames show the same view and "its own frame ±2" is decided by image noise; this
+/// measures that and is expected to fail (chance level is 5/95).
+#[test]
+#[ignore = "heavy, and the static micro sequence makes frames indistinguishable (see doc)"]
+fn euroc_place_recognition_all() {
+    euroc_place_recognition(95);
+}
+
+fn read_pose(path: &std::path::Path) -> Se3 {
+    let v: Vec<f64> = std::fs::read_to_string(path)
+        .unwrap()
+        .split_whitespace()
+        .map(|x| x.parse().unwrap())
+        .collect();
+    se3_from_matrix(&nalgebra::Matrix4::from_row_slice(&v[..16]))
+}
+
+/// 7-Scenes: database frames 0–400, queries 600–700 and 940–999; a query succeeds if its top-1
+/// database frame is within 0.3 m and 20° of it (ground truth). Queries with no such frame in
+/// the database at all are reported separately (they cannot succeed).
+#[test]
+#[ignore = "heavy: decodes and describes 562 JPEG frames"]
+fn seven_scenes_place_recognition() {
+    seven_scenes(1, 1);
+}
+
+/// The same with every 4th database frame and every 10th query (a fast version for CI).
+#[test]
+fn seven_scenes_place_recognition_sample() {
+    seven_scenes(4, 10);
+}
+
+fn seven_scenes(db_step: usize, query_step: usize) {
+    let Some(root) = data_dir("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let params = OrbParams::default();
+    let t = Instant::now();
+    let voc = Vocabulary::train(&training_descriptors(&params), 10, 4, 10, 42).unwrap();
+    println!(
+        "vocabulary: {} words, trained in {:.1} s",
+        voc.num_words(),
+        t.elapsed().as_secs_f64()
+    );
+    let frame = |i: usize| load_gray_u8(root.join(format!("rgb/frame-{i:06}.color.jpg"))).unwrap();
+    let pose = |i: usize| read_pose(&root.join(format!("pose/frame-{i:06}.pose.txt")));
+    let db_frames: Vec<usize> = (0..=400).step_by(db_step).collect();
+    let db_poses: Vec<Se3> = db_frames.iter().map(|&i| pose(i)).collect();
+    let mut db = Database::new();
+    for &i in &db_frames {
+        db.add(voc.transform(&detect_and_describe(&frame(i), &params).unwrap().1));
+    }
+    let close = |a: &Se3, b: &Se3| {
+        let d = a.inverse().compose(b);
+        d.translation().norm() <= 0.3 && d.rotation().angle().to_degrees() <= 20.0
+    };
+    let (mut hits, mut total, mut answerable, mut qtime) = (0, 0, 0, 0.0);
+    for i in (600..=700)
+        .step_by(query_step)
+        .chain((940..=999).step_by(query_step))
+    {
+        let q = pose(i);
+        let (_, d) = detect_and_describe(&frame(i), &params).unwrap();
+        let t = Instant::now();
+        let r = db.query(&voc.transform(&d), 1);
+        qtime += t.elapsed().as_secs_f64();
+        total += 1;
+        if db_poses.iter().any(|p| close(p, &q)) {
+            answerable += 1;
+        }
+        if r.first().is_some_and(|&(j, _)| close(&db_poses[j], &q)) {
+            hits += 1;
+        }
+    }
+    let rate = hits as f64 / total as f64;
+    println!(
+        "7-Scenes place recognition: {hits}/{total} = {:.1} % top-1 true revisits (≤0.3 m, ≤20°); {answerable} queries have a revisit in the database; {:.2} ms per query",
+        rate * 100.0,
+        qtime / total as f64 * 1e3
+    );
+    assert!(rate >= 0.5, "{rate}");
+}
+
+#[test]
+fn corrupt_and_odd_images_from_disk() {
+    let dir = std::env::temp_dir().join(format!("vision-real-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let empty = dir.join("empty.png");
+    std::fs::write(&empty, b"").unwrap();
+    assert!(load_gray_u8(&empty).is_err());
+    let garbage = dir.join("garbage.jpg");
+    std::fs::write(&garbage, [0xFFu8, 0xD8, 0xFF, 0x00, 0x12]).unwrap();
+    let e = load_gray_u8(&garbage).unwrap_err().to_string();
+    assert!(e.contains("garbage.jpg"), "{e}");
+    // Odd-sized and 1×1 images run through every operation without panicking.
+    for (w, h) in [(1usize, 1usize), (3, 2), (17, 9), (33, 31)] {
+        let img = Image::from_fn(w, h, |u, v| ((u * 37 + v * 91) % 251) as u8);
+        let _ = vision::fast::fast9(&img, 10, true);
+        let p = Pyramid::new(&img, 4, 1).unwrap();
+        let _ = vision::lk::track(&p, &p, &[[0.0, 0.0]], None, &Default::default());
+        let _ = detect_and_describe(&img, &OrbParams::default()).unwrap();
+        let _ = block_match(&img, &img, &StereoParams::default());
+        let _ = vision::tvl1::tvl1_flow(&img, &img, &Default::default());
+        let d = Image::<f32>::filled(w, h, 1.0);
+        let cam = geom::PinholeCamera::new(100.0, 100.0, w as f64 / 2.0, h as f64 / 2.0);
+        let _ = align(
+            &img,
+            &d,
+            &img,
+            &cam,
+            &Se3::identity(),
+            &DenseParams::default(),
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
