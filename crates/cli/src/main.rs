@@ -5,9 +5,9 @@ use clap::{Parser, Subcommand};
 
 mod ba;
 mod experiment;
+mod inspect;
 mod pgo;
 mod plot;
-mod inspect;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
 #[derive(Parser, Debug)]

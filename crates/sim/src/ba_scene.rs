@@ -5,7 +5,7 @@
 use data::bal::{BalCameraParameters, BalObservation, BalProblem};
 use geom::{BalCamera, CameraModel, PinholeCamera};
 use lie::{LieGroup, Se3, So3};
-use nalgebra::{Matrix3, Vector2, Vector3, Vector6};
+use nalgebra::{Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -63,17 +63,7 @@ pub struct BaScene {
 /// Image size of the simulated camera.
 pub const IMAGE_SIZE: (f64, f64) = (640.0, 480.0);
 
-/// `camera_from_world` of a camera at `centre` looking at `target` with `y` pointing down
-/// (thesis §3.2.1: x right, y down, z forward).
-pub fn look_at(centre: &Vector3<f64>, target: &Vector3<f64>, up_world: &Vector3<f64>) -> Se3 {
-    let z = (target - centre).normalize();
-    let x = z.cross(up_world).normalize();
-    let y = z.cross(&x);
-    let world_from_camera_r = Matrix3::from_columns(&[x, y, z]);
-    let r =
-        So3::from_matrix(&world_from_camera_r.transpose()).expect("orthonormal by construction");
-    Se3::new(r, -r.act(centre))
-}
+pub use crate::trajectory::look_at;
 
 /// Generates the scene: cameras on a horizontal circle about the origin, each looking at the
 /// origin; points uniform in a ball; each point observed by up to `max_track_length`

@@ -4,3 +4,6 @@
 #![warn(missing_docs)]
 
 pub mod ba_scene;
+pub mod sensor;
+pub mod trajectory;
+pub mod world;
