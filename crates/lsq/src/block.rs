@@ -86,6 +86,18 @@ impl BlockSymmetric {
             .map(|p| range.start + 1 + p)
     }
 
+    /// The contiguous range of `values` holding block column `j` (its blocks are stored one
+    /// after another), so that parallel tasks can own whole columns.
+    pub(crate) fn column_values(&self, j: usize) -> std::ops::Range<usize> {
+        let start = self.value_offsets[self.col_ptr[j]];
+        let end = if j + 1 < self.num_blocks() {
+            self.value_offsets[self.col_ptr[j + 1]]
+        } else {
+            self.values.len()
+        };
+        start..end
+    }
+
     /// The diagonal block of column `j` (column-major, `d×d`).
     pub(crate) fn diagonal_block(&self, j: usize) -> &[f64] {
         let o = self.value_offsets[self.col_ptr[j]];
