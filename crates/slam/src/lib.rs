@@ -5,4 +5,5 @@
 #![warn(missing_docs)]
 
 pub mod ba;
+pub mod feature_init;
 pub mod pose_graph;
