@@ -113,24 +113,10 @@ impl BlockSymmetric {
                 let i = self.rows[s] as usize;
                 let (oi, di) = (self.offsets[i], self.dims[i]);
                 let b = &self.values[self.value_offsets[s]..self.value_offsets[s] + di * dj];
-                // y_i += B·x_j
-                for c in 0..dj {
-                    let xc = x[oj + c];
-                    let col = &b[c * di..(c + 1) * di];
-                    for r in 0..di {
-                        y[oi + r] += col[r] * xc;
-                    }
-                }
+                // y_i += B·x_j, and for off-diagonal blocks y_j += Bᵀ·x_i.
+                crate::kernels::add_a_x(&mut y[oi..oi + di], b, &x[oj..oj + dj], di, dj, 1.0);
                 if i != j {
-                    // y_j += Bᵀ·x_i
-                    for c in 0..dj {
-                        let col = &b[c * di..(c + 1) * di];
-                        let mut acc = 0.0;
-                        for r in 0..di {
-                            acc += col[r] * x[oi + r];
-                        }
-                        y[oj + c] += acc;
-                    }
+                    crate::kernels::add_at_x(&mut y[oj..oj + dj], b, &x[oi..oi + di], di, dj, 1.0);
                 }
             }
         }
