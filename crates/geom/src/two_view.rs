@@ -64,7 +64,7 @@ fn hartley_normalisation(points: &[Vector2<f64>]) -> Option<Matrix3<f64>> {
     let n = points.len() as f64;
     let c = points.iter().sum::<Vector2<f64>>() / n;
     let mean_dist = points.iter().map(|p| (p - c).norm()).sum::<f64>() / n;
-    if !(mean_dist > 1e-12 * (1.0 + c.norm())) {
+    if mean_dist.is_nan() || mean_dist <= 1e-12 * (1.0 + c.norm()) {
         return None;
     }
     let s = std::f64::consts::SQRT_2 / mean_dist;
@@ -228,7 +228,7 @@ pub fn triangulate(b_from_a: &Se3, m_a: &Vector2<f64>, m_b: &Vector2<f64>) -> Op
     let parallax = (fa.dot(&fb) / (fa.norm() * fb.norm()))
         .clamp(-1.0, 1.0)
         .acos();
-    if !(det > 1e-12 * aa * bb) || !parallax.is_finite() {
+    if det.is_nan() || det <= 1e-12 * aa * bb || !parallax.is_finite() {
         return None;
     }
     let da = (bb * ra - ab * rb) / det;
