@@ -9,14 +9,15 @@
 //!
 //! `C(M) = Σᵢ min(eᵢ(M), τ)²`,
 //!
-//! keeps the best, and stops after
+//! re-fits each new best hypothesis to its inliers while that lowers the cost (the local
+//! optimisation of LO-RANSAC, Chum, Matas & Kittler 2003: minimal samples of noisy data give
+//! poor models, their inlier sets good ones), keeps the best, and stops after
 //!
 //! `k = ⌈log(1 − p) / log(1 − wˢ)⌉`
 //!
 //! iterations, where `w` is the best inlier ratio found so far, `s` the sample size and `p` the
 //! required confidence of having drawn one all-inlier sample (bounded by
-//! [`RansacConfig::max_iterations`]). The best model is then re-estimated from its inliers
-//! ([`Estimator::fit_inliers`]) while that lowers the cost. The same seed gives the same result.
+//! [`RansacConfig::max_iterations`]). The same seed gives the same result.
 
 use crate::align::{AlignError, ScaleEstimate, align_sim3_with};
 use lie::{LieGroup, Sim3};
@@ -39,9 +40,10 @@ pub trait Estimator {
     /// appends nothing when the sample is degenerate.
     fn fit_minimal(&self, sample: &[usize], models: &mut Vec<Self::Model>);
 
-    /// A least-squares model from a larger set of inliers, or `None` (the default) if the
-    /// estimator has no such refinement or the set is degenerate.
-    fn fit_inliers(&self, _inliers: &[usize]) -> Option<Self::Model> {
+    /// A model fitted to a larger set of inliers (least squares, starting from or near
+    /// `current`, the model whose inliers they are), or `None` (the default) if the estimator
+    /// has no such refinement or the set is degenerate.
+    fn fit_inliers(&self, _inliers: &[usize], _current: &Self::Model) -> Option<Self::Model> {
         None
     }
 
@@ -155,6 +157,33 @@ pub fn required_iterations(inlier_ratio: f64, sample_size: usize, confidence: f6
     }
 }
 
+/// Re-fits `model` to its inliers ([`Estimator::fit_inliers`]) while that lowers the MSAC cost,
+/// at most 10 times.
+fn local_optimisation<E: Estimator>(
+    estimator: &E,
+    mut model: E::Model,
+    mut cost: f64,
+    mut inliers: usize,
+    config: &RansacConfig,
+) -> (E::Model, f64, usize) {
+    for _ in 0..10 {
+        let set = inlier_set(estimator, &model, config.threshold);
+        let Some(refined) = estimator.fit_inliers(&set, &model) else {
+            break;
+        };
+        let (c, i) = msac_cost(estimator, &refined, config.threshold);
+        if c >= cost {
+            break;
+        }
+        let converged = cost - c <= 1e-12 * cost;
+        (model, cost, inliers) = (refined, c, i);
+        if converged {
+            break;
+        }
+    }
+    (model, cost, inliers)
+}
+
 /// Robustly fits a model (see the [module docs](self)).
 pub fn ransac<E: Estimator>(
     estimator: &E,
@@ -194,35 +223,20 @@ pub fn ransac<E: Estimator>(
         for m in models.drain(..) {
             let (cost, inliers) = msac_cost(estimator, &m, config.threshold);
             if inliers > 0 && best.as_ref().is_none_or(|b| cost < b.1) {
+                // Local optimisation (LO-RANSAC, Chum et al. 2003): re-fit to the inliers of
+                // the new best hypothesis while that lowers the cost.
+                let (m, cost, inliers) = local_optimisation(estimator, m, cost, inliers, config);
                 needed = required_iterations(inliers as f64 / n as f64, s, config.confidence);
                 best = Some((m, cost, inliers));
             }
         }
     }
-    let Some((mut model, mut cost, _)) = best else {
+    let Some((model, _, _)) = best else {
         return Err(RansacError::NoModel {
             iterations,
             degenerate,
         });
     };
-    // Re-estimate from the inliers while that lowers the cost.
-    for _ in 0..10 {
-        let inliers = inlier_set(estimator, &model, config.threshold);
-        let Some(refined) = estimator.fit_inliers(&inliers) else {
-            break;
-        };
-        let (c, _) = msac_cost(estimator, &refined, config.threshold);
-        if c < cost {
-            let converged = cost - c <= 1e-12 * cost;
-            model = refined;
-            cost = c;
-            if converged {
-                break;
-            }
-        } else {
-            break;
-        }
-    }
     let inliers = inlier_set(estimator, &model, config.threshold);
     Ok(RansacResult {
         model,
@@ -270,7 +284,7 @@ impl Estimator for Sim3Estimator<'_> {
         }
     }
 
-    fn fit_inliers(&self, inliers: &[usize]) -> Option<Sim3> {
+    fn fit_inliers(&self, inliers: &[usize], _current: &Sim3) -> Option<Sim3> {
         self.fit(inliers, ScaleEstimate::LeastSquares).ok()
     }
 

@@ -98,11 +98,15 @@ fn project_to_essential(m: &Matrix3<f64>) -> Matrix3<f64> {
 /// coordinates) by the normalised 8-point algorithm: Hartley's normalisation of each view, the
 /// least-squares null vector of the constraint matrix `A·vec(Ê) = 0` by SVD, de-normalisation
 /// `E = T_bᵀ·Ê·T_a`, and projection onto the essential matrices (singular values `(1, 1, 0)`).
-/// `E` is returned with unit Frobenius norm `√2`-scaled as `diag(1, 1, 0)`.
 pub fn essential_eight_point(
     m_a: &[Vector2<f64>],
     m_b: &[Vector2<f64>],
 ) -> Result<Matrix3<f64>, TwoViewError> {
+    check_correspondences(m_a, m_b)?;
+    weighted_eight_point(m_a, m_b, None)
+}
+
+fn check_correspondences(m_a: &[Vector2<f64>], m_b: &[Vector2<f64>]) -> Result<(), TwoViewError> {
     if m_a.len() != m_b.len() {
         return Err(TwoViewError::LengthMismatch {
             a: m_a.len(),
@@ -117,17 +121,31 @@ pub fn essential_eight_point(
             return Err(TwoViewError::NotFinite { index });
         }
     }
+    Ok(())
+}
+
+fn weighted_eight_point(
+    m_a: &[Vector2<f64>],
+    m_b: &[Vector2<f64>],
+    weights: Option<&[f64]>,
+) -> Result<Matrix3<f64>, TwoViewError> {
     let ta = hartley_normalisation(m_a).ok_or(TwoViewError::Degenerate("coincident points"))?;
     let tb = hartley_normalisation(m_b).ok_or(TwoViewError::Degenerate("coincident points"))?;
+    // The weights are for the de-normalised constraint; scaling a row keeps its null space.
+    let w_scale = weights.map(|w| w.iter().copied().fold(0.0_f64, f64::max));
     // At least 9 rows so that the SVD returns the full right singular basis.
     let rows = m_a.len().max(9);
     let mut a = DMatrix::<f64>::zeros(rows, 9);
     for (i, (pa, pb)) in m_a.iter().zip(m_b).enumerate() {
+        let w = match (weights, w_scale) {
+            (Some(w), Some(m)) if m > 0.0 => w[i] / m,
+            _ => 1.0,
+        };
         let xa = ta * Vector3::new(pa.x, pa.y, 1.0);
         let xb = tb * Vector3::new(pb.x, pb.y, 1.0);
         for r in 0..3 {
             for c in 0..3 {
-                a[(i, 3 * r + c)] = xb[r] * xa[c];
+                a[(i, 3 * r + c)] = w * xb[r] * xa[c];
             }
         }
     }
@@ -148,16 +166,20 @@ pub fn essential_eight_point(
     Ok(project_to_essential(&e))
 }
 
+fn sampson_denominator(e: &Matrix3<f64>, m_a: &Vector2<f64>, m_b: &Vector2<f64>) -> f64 {
+    let ea = e * Vector3::new(m_a.x, m_a.y, 1.0);
+    let etb = e.transpose() * Vector3::new(m_b.x, m_b.y, 1.0);
+    ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y
+}
+
 /// The Sampson distance of a correspondence to the epipolar constraint (first-order geometric
 /// error, in normalised image units): `(m̃_bᵀEm̃_a)² / ((Em̃_a)₁² + (Em̃_a)₂² + (Eᵀm̃_b)₁² +
 /// (Eᵀm̃_b)₂²)`, square-rooted.
 pub fn sampson_distance(e: &Matrix3<f64>, m_a: &Vector2<f64>, m_b: &Vector2<f64>) -> f64 {
     let xa = Vector3::new(m_a.x, m_a.y, 1.0);
     let xb = Vector3::new(m_b.x, m_b.y, 1.0);
-    let ea = e * xa;
-    let etb = e.transpose() * xb;
-    let num = xb.dot(&ea);
-    let den = ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y;
+    let num = xb.dot(&(e * xa));
+    let den = sampson_denominator(e, m_a, m_b);
     if den <= 0.0 {
         return if num == 0.0 { 0.0 } else { f64::INFINITY };
     }
@@ -199,6 +221,113 @@ pub fn decompose_essential(e: &Matrix3<f64>) -> [Se3; 4] {
         Se3::new(r2, t),
         Se3::new(r2, -t),
     ]
+}
+
+/// Signed Sampson residuals `m̃_bᵀEm̃_a / √((Em̃_a)₁² + (Em̃_a)₂² + (Eᵀm̃_b)₁² + (Eᵀm̃_b)₂²)`.
+fn sampson_residuals(
+    e: &Matrix3<f64>,
+    m_a: &[Vector2<f64>],
+    m_b: &[Vector2<f64>],
+    indices: &[usize],
+    out: &mut Vec<f64>,
+) {
+    out.clear();
+    for &i in indices {
+        let num =
+            Vector3::new(m_b[i].x, m_b[i].y, 1.0).dot(&(e * Vector3::new(m_a[i].x, m_a[i].y, 1.0)));
+        let den = sampson_denominator(e, &m_a[i], &m_b[i]);
+        out.push(if den > 0.0 { num / den.sqrt() } else { 0.0 });
+    }
+}
+
+/// `[t]×·R` with the translation along `t_dir` perturbed by `α` in the plane orthogonal to it
+/// and the rotation by `exp(ω)`: the 5-DoF essential manifold around `(R, t_dir)`.
+fn essential_from(r: &So3, t_dir: &Vector3<f64>, delta: &[f64; 5]) -> (So3, Vector3<f64>) {
+    let r = So3::exp(&Vector3::new(delta[0], delta[1], delta[2])).compose(r);
+    let helper = if t_dir.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let b1 = t_dir.cross(&helper).normalize();
+    let b2 = t_dir.cross(&b1);
+    let t = (t_dir + b1 * delta[3] + b2 * delta[4]).normalize();
+    (r, t)
+}
+
+/// Refines an essential matrix by minimising the sum of squared Sampson distances of the given
+/// correspondences over the 5-DoF essential manifold `E = [t]×·R`, `|t| = 1` (Levenberg-
+/// Marquardt with central-difference Jacobians; updates `R ← exp(ω)·R`, `t ← normalise(t + Bα)`
+/// with `B` a basis of the plane orthogonal to `t`). Unlike re-fitting the linear 8-point
+/// algorithm, this keeps the essential constraint throughout, which matters for the nearly
+/// planar scenes where the 8-point algorithm is ill-conditioned (Hartley & Zisserman §11.4–11.5).
+/// `None` if there are fewer than 5 correspondences.
+pub fn refine_essential(
+    e: &Matrix3<f64>,
+    m_a: &[Vector2<f64>],
+    m_b: &[Vector2<f64>],
+    indices: &[usize],
+    iterations: usize,
+) -> Option<Matrix3<f64>> {
+    if indices.len() < 5 {
+        return None;
+    }
+    let start = decompose_essential(e)[0];
+    let (mut r, mut t) = (*start.rotation(), start.translation().normalize());
+    let essential = |r: &So3, t: &Vector3<f64>| lie::skew(t) * r.rotation_matrix();
+    let mut res = Vec::with_capacity(indices.len());
+    sampson_residuals(&essential(&r, &t), m_a, m_b, indices, &mut res);
+    let mut cost: f64 = res.iter().map(|v| v * v).sum();
+    let n = indices.len();
+    let mut jac = DMatrix::<f64>::zeros(n, 5);
+    let (mut plus, mut minus) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut lambda = 1e-3;
+    let h = 1e-7;
+    for _ in 0..iterations {
+        for k in 0..5 {
+            let mut d = [0.0; 5];
+            d[k] = h;
+            let (rp, tp) = essential_from(&r, &t, &d);
+            d[k] = -h;
+            let (rm, tm) = essential_from(&r, &t, &d);
+            sampson_residuals(&essential(&rp, &tp), m_a, m_b, indices, &mut plus);
+            sampson_residuals(&essential(&rm, &tm), m_a, m_b, indices, &mut minus);
+            for i in 0..n {
+                jac[(i, k)] = (plus[i] - minus[i]) / (2.0 * h);
+            }
+        }
+        let jt = jac.transpose();
+        let hess = &jt * &jac;
+        let grad = &jt * nalgebra::DVector::from_column_slice(&res);
+        let mut improved = false;
+        while lambda < 1e10 {
+            let mut damped = hess.clone();
+            for k in 0..5 {
+                damped[(k, k)] += lambda * hess[(k, k)].max(1e-12);
+            }
+            let Some(step) = damped.cholesky().map(|c| -c.solve(&grad)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let d = [step[0], step[1], step[2], step[3], step[4]];
+            let (rn, tn) = essential_from(&r, &t, &d);
+            sampson_residuals(&essential(&rn, &tn), m_a, m_b, indices, &mut plus);
+            let c: f64 = plus.iter().map(|v| v * v).sum();
+            if c < cost {
+                let converged = cost - c <= 1e-10 * cost;
+                (r, t, cost) = (rn, tn, c);
+                std::mem::swap(&mut res, &mut plus);
+                lambda = (lambda * 0.1).max(1e-12);
+                improved = !converged;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Some(essential(&r, &t))
 }
 
 /// A triangulated correspondence.
@@ -278,8 +407,9 @@ pub fn pose_from_essential(
 }
 
 /// The essential matrix as a RANSAC problem over normalised correspondences: minimal samples of
-/// 8 by [`essential_eight_point`], error the Sampson distance times `pixel_scale` (the focal
-/// length, so that the threshold is in pixels).
+/// 8 by [`essential_eight_point`], inlier sets re-fitted by [`essential_sampson_refined`], error
+/// the Sampson distance times `pixel_scale` (the focal length, so that the threshold is in
+/// pixels).
 #[derive(Clone, Copy, Debug)]
 pub struct EssentialEstimator<'a> {
     /// Normalised points in view a.
@@ -302,15 +432,15 @@ impl Estimator for EssentialEstimator<'_> {
     }
 
     fn fit_minimal(&self, sample: &[usize], models: &mut Vec<Matrix3<f64>>) {
-        self.fit_inliers(sample)
-            .into_iter()
-            .for_each(|e| models.push(e));
+        let a: Vec<_> = sample.iter().map(|&i| self.m_a[i]).collect();
+        let b: Vec<_> = sample.iter().map(|&i| self.m_b[i]).collect();
+        if let Ok(e) = essential_eight_point(&a, &b) {
+            models.push(e);
+        }
     }
 
-    fn fit_inliers(&self, inliers: &[usize]) -> Option<Matrix3<f64>> {
-        let a: Vec<_> = inliers.iter().map(|&i| self.m_a[i]).collect();
-        let b: Vec<_> = inliers.iter().map(|&i| self.m_b[i]).collect();
-        essential_eight_point(&a, &b).ok()
+    fn fit_inliers(&self, inliers: &[usize], current: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+        refine_essential(current, self.m_a, self.m_b, inliers, 10)
     }
 
     fn error(&self, e: &Matrix3<f64>, i: usize) -> f64 {
