@@ -31,14 +31,13 @@ use slam::pose_graph::{PoseGraphJacobian, PoseGraphProblem};
 use std::collections::HashSet;
 use std::time::Instant;
 
-/// The thesis's accuracy measure (§5.4): with both trajectories expressed relative to their
-/// first pose, `M = min_s Σᵢ ‖cᵢ^true − s·cᵢ^est‖²` over the camera centres `cᵢ`, and
-/// `RMSE = √(M/n)`. The optimal scale is `s = Σ cᵢ^true·cᵢ^est / Σ ‖cᵢ^est‖²`.
-///
-/// Returns `NaN` for empty or differently sized inputs.
-pub fn scale_aligned_rmse(truth: &[Se3], estimate: &[Se3]) -> f64 {
+/// The estimated camera centres mapped into the true world frame by the thesis's alignment
+/// (§5.4): both trajectories relative to their first pose, the estimate scaled by
+/// `s = argmin Σᵢ ‖cᵢ^true − s·cᵢ^est‖² = Σ cᵢ^true·cᵢ^est / Σ ‖cᵢ^est‖²`, then back through
+/// the true first pose. Returns the aligned centres and `s`; empty for unequal lengths.
+pub fn aligned_centres(truth: &[Se3], estimate: &[Se3]) -> (Vec<Vector3<f64>>, f64) {
     if truth.is_empty() || truth.len() != estimate.len() {
-        return f64::NAN;
+        return (Vec::new(), f64::NAN);
     }
     let rel = |poses: &[Se3]| -> Vec<Vector3<f64>> {
         let first = poses[0];
@@ -54,10 +53,22 @@ pub fn scale_aligned_rmse(truth: &[Se3], estimate: &[Se3]) -> f64 {
     } else {
         0.0
     };
-    let m: f64 = ct
+    let back = truth[0].inverse();
+    (ce.iter().map(|c| back.act(&(c * s))).collect(), s)
+}
+
+/// The thesis's accuracy measure (§5.4): with both trajectories expressed relative to their
+/// first pose, `M = min_s Σᵢ ‖cᵢ^true − s·cᵢ^est‖²` over the camera centres `cᵢ`, and
+/// `RMSE = √(M/n)` (see [`aligned_centres`]). `NaN` for empty or differently sized inputs.
+pub fn scale_aligned_rmse(truth: &[Se3], estimate: &[Se3]) -> f64 {
+    let (aligned, _) = aligned_centres(truth, estimate);
+    if aligned.is_empty() {
+        return f64::NAN;
+    }
+    let m: f64 = truth
         .iter()
-        .zip(&ce)
-        .map(|(a, b)| (a - s * b).norm_squared())
+        .zip(&aligned)
+        .map(|(t, c)| (trajectory::centre(t) - c).norm_squared())
         .sum();
     (m / truth.len() as f64).sqrt()
 }
@@ -224,8 +235,6 @@ fn explore(
     on_frame: &mut dyn FnMut(usize, usize),
 ) -> Result<MonoExplorer, ScaleDriftError> {
     let config = ExplorationConfig {
-        keyframe_distance: std::env::var("KFD").map(|v| v.parse().unwrap()).unwrap_or(0.05),
-        max_features: std::env::var("MAXF").map(|v| v.parse().unwrap()).unwrap_or(150),
         sigma: settings.sigma.max(0.1),
         window: settings.window,
         image_width: sensor.visibility.width,
@@ -543,6 +552,174 @@ pub fn run_sphere(
     )
 }
 
+/// One run of the circle Monte Carlo experiment (thesis Fig. 5.5 d, e).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CircleRecord {
+    /// Pixel noise σ.
+    pub sigma: f64,
+    /// The run's seed.
+    pub seed: u64,
+    /// `s_loop` of the loop constraint.
+    pub loop_scale: f64,
+    /// The loop scale implied by the map (see [`ClosedLoop::true_scale`]).
+    pub true_loop_scale: f64,
+    /// Scale drift magnitude `exp(|ln s_loop|) − 1`.
+    pub scale_drift: f64,
+    /// RMSE before correction.
+    pub rmse_explored: f64,
+    /// RMSE after SE(3) correction.
+    pub rmse_se3: f64,
+    /// RMSE after Sim(3) correction.
+    pub rmse_sim3: f64,
+    /// RMSE after Sim(3) correction and map refinement.
+    pub rmse_refined: f64,
+    /// Keyframes.
+    pub keyframes: usize,
+    /// Inliers of the loop constraint.
+    pub loop_inliers: usize,
+    /// Why the run failed, if it did (the numbers are then `NaN`).
+    pub error: Option<String>,
+}
+
+impl CircleRecord {
+    fn from_run(sigma: f64, seed: u64, run: &Result<LoopRun, ScaleDriftError>) -> Self {
+        match run {
+            Ok(r) => CircleRecord {
+                sigma,
+                seed,
+                loop_scale: r.loops[0].edge.old_from_current.scale(),
+                true_loop_scale: r.loops[0].true_scale,
+                scale_drift: r.scale_drift_magnitude(),
+                rmse_explored: r.rmse_explored,
+                rmse_se3: r.rmse_se3,
+                rmse_sim3: r.rmse_sim3,
+                rmse_refined: r.rmse_refined,
+                keyframes: r.explored.len(),
+                loop_inliers: r.loops[0].inliers,
+                error: None,
+            },
+            Err(e) => CircleRecord {
+                sigma,
+                seed,
+                loop_scale: f64::NAN,
+                true_loop_scale: f64::NAN,
+                scale_drift: f64::NAN,
+                rmse_explored: f64::NAN,
+                rmse_se3: f64::NAN,
+                rmse_sim3: f64::NAN,
+                rmse_refined: f64::NAN,
+                keyframes: 0,
+                loop_inliers: 0,
+                error: Some(e.to_string()),
+            },
+        }
+    }
+}
+
+/// Runs the circle for every noise level and `runs` seeds (`base_seed + run`; the same seeds at
+/// every noise level — common random numbers: the same worlds and the same standard-normal
+/// draws scaled by σ), in parallel. `on_run` is called after each run with the runs done. The
+/// full [`LoopRun`] of `keep = (σ, seed)` is returned as well (for plots).
+pub fn circle_monte_carlo(
+    base: &CircleConfig,
+    noise: &[f64],
+    runs: usize,
+    base_seed: u64,
+    keep: Option<(f64, u64)>,
+    on_run: &(dyn Fn(usize) + Sync),
+) -> (Vec<CircleRecord>, Option<LoopRun>) {
+    use rayon::prelude::*;
+    let jobs: Vec<(f64, u64)> = noise
+        .iter()
+        .flat_map(|&s| (0..runs as u64).map(move |r| (s, base_seed + r)))
+        .collect();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let results: Vec<(CircleRecord, Option<LoopRun>)> = jobs
+        .par_iter()
+        .map(|&(sigma, seed)| {
+            let config = CircleConfig {
+                settings: RunSettings {
+                    sigma,
+                    seed,
+                    ..base.settings.clone()
+                },
+                ..base.clone()
+            };
+            let run = run_circle(&config, &mut |_, _| {});
+            let record = CircleRecord::from_run(sigma, seed, &run);
+            on_run(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+            let kept = (keep == Some((sigma, seed))).then(|| run.ok()).flatten();
+            (record, kept)
+        })
+        .collect();
+    let mut kept = None;
+    let records = results
+        .into_iter()
+        .map(|(r, k)| {
+            if k.is_some() {
+                kept = k;
+            }
+            r
+        })
+        .collect();
+    (records, kept)
+}
+
+/// Means over the successful runs of one noise level.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NoiseLevelSummary {
+    /// Pixel noise σ.
+    pub sigma: f64,
+    /// Successful runs.
+    pub runs: usize,
+    /// Failed runs.
+    pub failed: usize,
+    /// Mean scale drift magnitude at loop closure.
+    pub scale_drift: f64,
+    /// Mean RMSE before correction.
+    pub rmse_explored: f64,
+    /// Mean RMSE after SE(3) correction.
+    pub rmse_se3: f64,
+    /// Mean RMSE after Sim(3) correction.
+    pub rmse_sim3: f64,
+    /// Mean RMSE after Sim(3) correction and refinement.
+    pub rmse_refined: f64,
+}
+
+/// Averages the records per noise level (in the order of `noise`).
+pub fn summarise(records: &[CircleRecord], noise: &[f64]) -> Vec<NoiseLevelSummary> {
+    noise
+        .iter()
+        .map(|&sigma| {
+            let ok: Vec<&CircleRecord> = records
+                .iter()
+                .filter(|r| r.sigma == sigma && r.error.is_none())
+                .collect();
+            let failed = records
+                .iter()
+                .filter(|r| r.sigma == sigma && r.error.is_some())
+                .count();
+            let mean = |f: &dyn Fn(&CircleRecord) -> f64| {
+                if ok.is_empty() {
+                    f64::NAN
+                } else {
+                    ok.iter().map(|r| f(r)).sum::<f64>() / ok.len() as f64
+                }
+            };
+            NoiseLevelSummary {
+                sigma,
+                runs: ok.len(),
+                failed,
+                scale_drift: mean(&|r| r.scale_drift),
+                rmse_explored: mean(&|r| r.rmse_explored),
+                rmse_se3: mean(&|r| r.rmse_se3),
+                rmse_sim3: mean(&|r| r.rmse_sim3),
+                rmse_refined: mean(&|r| r.rmse_refined),
+            }
+        })
+        .collect()
+}
+
 /// How the pose-graph Jacobians are computed in [`jacobian_convergence`].
 pub const JACOBIAN_METHODS: [(&str, PoseGraphJacobian); 5] = [
     ("numeric", PoseGraphJacobian::Numeric),
@@ -631,23 +808,6 @@ pub fn jacobian_convergence(
         out.push(best.expect("at least one repeat"));
     }
     Ok(out)
-}
-
-/// The relative similarity error of the first loop against the truth, for diagnostics:
-/// `‖log(S_est · S_true⁻¹)‖` is not available without the true map scales, so this returns the
-/// loop's scale and the true rigid motion's rotation angle error.
-pub fn loop_rotation_error(run: &LoopRun) -> Option<f64> {
-    let l = run.loops.first()?;
-    let (i, j) = (l.edge.old, l.edge.current);
-    let truth = run.truth[i].compose(&run.truth[j].inverse());
-    let est: Sim3 = l.edge.old_from_current;
-    Some(
-        est.rotation()
-            .inverse()
-            .compose(truth.rotation())
-            .log()
-            .norm(),
-    )
 }
 
 #[cfg(test)]
