@@ -16,7 +16,7 @@
 use crate::sensor::{MonoSensor, Sensor};
 use crate::trajectory;
 use crate::world;
-use lie::{LieGroup, LogJacobian, Se3, Sim3};
+use lie::{LieGroup, LogJacobian, Se3};
 use lsq::SolverOptions;
 use nalgebra::{Vector2, Vector3};
 use rand::SeedableRng;
@@ -279,6 +279,7 @@ fn best_old_keyframe(
 
 /// Closes the loops `(old, current)`, corrects in SE(3) and Sim(3), refines the map and
 /// evaluates against the truth.
+#[allow(clippy::too_many_arguments)]
 fn close_and_evaluate(
     sensor: &MonoSensor,
     settings: &RunSettings,
@@ -297,7 +298,9 @@ fn close_and_evaluate(
             .iter()
             .map(|(p, _)| {
                 let est = k.camera_from_world.act(&points[*p].point_world).z;
-                let truth = truth_all[k.frame].act(&world_points[points[*p].track as usize]).z;
+                let truth = truth_all[k.frame]
+                    .act(&world_points[points[*p].track as usize])
+                    .z;
                 est / truth
             })
             .filter(|r| r.is_finite() && *r > 0.0)
@@ -419,7 +422,11 @@ pub fn run_circle(
     config: &CircleConfig,
     on_frame: &mut dyn FnMut(usize, usize),
 ) -> Result<LoopRun, ScaleDriftError> {
-    if config.poses < 20 || config.points < 10 || !(config.settings.sigma >= 0.0) {
+    if config.poses < 20
+        || config.points < 10
+        || config.settings.sigma.is_nan()
+        || config.settings.sigma < 0.0
+    {
         return Err(ScaleDriftError::InvalidParameter(format!(
             "circle needs ≥ 20 poses, ≥ 10 points and σ ≥ 0 (got {}, {}, {})",
             config.poses, config.points, config.settings.sigma
@@ -496,7 +503,7 @@ impl Default for SphereConfig {
 
 /// Runs the sphere flight: explores, then closes `loops` loops, each between a keyframe and the
 /// old keyframe of an earlier turn sharing most tracks with it, the current keyframes evenly
-/// spread over the second half of the keyframes that have such a partner.
+/// spread over all keyframes that have such a partner (so the loops correct the whole flight).
 pub fn run_sphere(
     config: &SphereConfig,
     on_frame: &mut dyn FnMut(usize, usize),
@@ -527,7 +534,7 @@ pub fn run_sphere(
     let n = kfs.len();
     // An earlier turn: at least half a turn's worth of keyframes back.
     let gap = ((n as f64 / config.turns) * 0.5).ceil() as usize;
-    let candidates: Vec<(usize, usize)> = (n / 2..n)
+    let candidates: Vec<(usize, usize)> = (0..n)
         .filter_map(|j| best_old_keyframe(kfs, j, gap, 30).map(|(i, _)| (i, j)))
         .collect();
     if candidates.len() < config.loops {
