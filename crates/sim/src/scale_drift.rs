@@ -848,6 +848,98 @@ mod tests {
         assert!(scale_aligned_rmse(&truth, &shifted) > 1e-3);
         assert!(scale_aligned_rmse(&truth, &est[..3]).is_nan());
     }
+
+    /// The circle of §5.4 with fewer points: the same seed gives the same numbers, the loop is
+    /// found and closed, and a different seed gives different noise.
+    #[test]
+    fn circle_run_is_deterministic_and_closes_the_loop() {
+        let config = |seed| CircleConfig {
+            points: 3000,
+            settings: RunSettings {
+                sigma: 1.0,
+                seed,
+                ..RunSettings::default()
+            },
+            ..CircleConfig::default()
+        };
+        let a = run_circle(&config(5), &mut |_, _| {}).unwrap();
+        let b = run_circle(&config(5), &mut |_, _| {}).unwrap();
+        assert_eq!(a.explored, b.explored);
+        assert_eq!(a.loops, b.loops);
+        assert_eq!(a.corrected_sim3, b.corrected_sim3);
+        assert_eq!(a.rmse_se3.to_bits(), b.rmse_se3.to_bits());
+        assert_eq!(a.loops.len(), 1);
+        let l = &a.loops[0];
+        // The loop joins the end of the circle to its start.
+        assert!(l.edge.current + 1 == a.explored.len() && l.edge.old < a.explored.len() / 10);
+        // The loop similarity's scale agrees with the map's actual scale change (measured:
+        // within 0.2 % at σ = 0 and 1.4 % for this seed at σ = 1 px; bound 3 %).
+        assert!(
+            (l.edge.old_from_current.scale() / l.true_scale - 1.0).abs() < 0.03,
+            "s_loop {} vs map {}",
+            l.edge.old_from_current.scale(),
+            l.true_scale
+        );
+        assert!(
+            a.rmse_sim3 < a.rmse_explored,
+            "Sim(3) {} explored {}",
+            a.rmse_sim3,
+            a.rmse_explored
+        );
+        let c = run_circle(&config(6), &mut |_, _| {}).unwrap();
+        assert_ne!(a.explored, c.explored);
+    }
+
+    #[test]
+    fn invalid_settings_are_errors() {
+        let bad = CircleConfig {
+            settings: RunSettings {
+                sigma: f64::NAN,
+                ..RunSettings::default()
+            },
+            ..CircleConfig::default()
+        };
+        assert!(matches!(
+            run_circle(&bad, &mut |_, _| {}),
+            Err(ScaleDriftError::InvalidParameter(_))
+        ));
+        let bad = SphereConfig {
+            loops: 0,
+            ..SphereConfig::default()
+        };
+        assert!(matches!(
+            run_sphere(&bad, &mut |_, _| {}),
+            Err(ScaleDriftError::InvalidParameter(_))
+        ));
+    }
+
+    #[test]
+    fn summaries_average_successful_runs_per_level() {
+        let rec = |sigma: f64, drift: f64, error: Option<&str>| CircleRecord {
+            sigma,
+            seed: 0,
+            loop_scale: 1.0 + drift,
+            true_loop_scale: 1.0 + drift,
+            scale_drift: drift,
+            rmse_explored: 1.0,
+            rmse_se3: 2.0 * drift,
+            rmse_sim3: drift,
+            rmse_refined: drift,
+            keyframes: 10,
+            loop_inliers: 30,
+            error: error.map(str::to_string),
+        };
+        let records = [
+            rec(0.5, 0.01, None),
+            rec(0.5, 0.03, None),
+            rec(0.5, f64::NAN, Some("lost")),
+            rec(1.0, 0.05, None),
+        ];
+        let s = summarise(&records, &[0.5, 1.0]);
+        assert_eq!((s[0].runs, s[0].failed), (2, 1));
+        assert!((s[0].scale_drift - 0.02).abs() < 1e-15);
+        assert!((s[1].rmse_se3 - 0.1).abs() < 1e-15);
+    }
 }
 
 #[cfg(test)]
