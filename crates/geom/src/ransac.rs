@@ -9,9 +9,10 @@
 //!
 //! `C(M) = Σᵢ min(eᵢ(M), τ)²`,
 //!
-//! re-fits each new best hypothesis to its inliers while that lowers the cost (the local
-//! optimisation of LO-RANSAC, Chum, Matas & Kittler 2003: minimal samples of noisy data give
-//! poor models, their inlier sets good ones), keeps the best, and stops after
+//! re-fits each hypothesis that beats the best minimal-sample hypothesis so far to its inliers
+//! while that lowers the cost (the local optimisation of LO-RANSAC, Chum, Matas & Kittler 2003:
+//! minimal samples of noisy data give poor models, their inlier sets good ones), keeps the best
+//! optimised model, and stops after
 //!
 //! `k = ⌈log(1 − p) / log(1 − wˢ)⌉`
 //!
@@ -207,6 +208,7 @@ pub fn ransac<E: Estimator>(
     }
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let mut best: Option<(E::Model, f64, usize)> = None;
+    let mut best_raw = f64::INFINITY;
     let mut models = Vec::new();
     let mut needed = config.max_iterations;
     let mut iterations = 0;
@@ -222,12 +224,18 @@ pub fn ransac<E: Estimator>(
         }
         for m in models.drain(..) {
             let (cost, inliers) = msac_cost(estimator, &m, config.threshold);
-            if inliers > 0 && best.as_ref().is_none_or(|b| cost < b.1) {
-                // Local optimisation (LO-RANSAC, Chum et al. 2003): re-fit to the inliers of
-                // the new best hypothesis while that lowers the cost.
+            // Local optimisation (LO-RANSAC, Chum et al. 2003): each hypothesis that is the
+            // best *minimal-sample* model so far is re-fitted to its inliers while that lowers
+            // the cost; the optimised model replaces the best one if it is better. Comparing
+            // raw hypotheses with the best raw one (not the optimised one) keeps giving new
+            // basins a chance: a minimal sample of noisy points rarely beats an optimised model.
+            if inliers > 0 && cost < best_raw {
+                best_raw = cost;
                 let (m, cost, inliers) = local_optimisation(estimator, m, cost, inliers, config);
-                needed = required_iterations(inliers as f64 / n as f64, s, config.confidence);
-                best = Some((m, cost, inliers));
+                if best.as_ref().is_none_or(|b| cost < b.1) {
+                    needed = required_iterations(inliers as f64 / n as f64, s, config.confidence);
+                    best = Some((m, cost, inliers));
+                }
             }
         }
     }

@@ -439,8 +439,29 @@ impl Estimator for EssentialEstimator<'_> {
         }
     }
 
+    /// Refines both `current` and the linear 8-point fit to the inliers with
+    /// [`refine_essential`] and keeps the one with the smaller sum of squared Sampson distances
+    /// over the inliers: a model from a minimal sample of noisy points can be far enough off
+    /// that the local refinement from it stalls, while the linear fit to the whole inlier set
+    /// starts near the optimum.
     fn fit_inliers(&self, inliers: &[usize], current: &Matrix3<f64>) -> Option<Matrix3<f64>> {
-        refine_essential(current, self.m_a, self.m_b, inliers, 10)
+        let a: Vec<_> = inliers.iter().map(|&i| self.m_a[i]).collect();
+        let b: Vec<_> = inliers.iter().map(|&i| self.m_b[i]).collect();
+        let linear = essential_eight_point(&a, &b).ok();
+        let cost = |e: &Matrix3<f64>| -> f64 {
+            inliers
+                .iter()
+                .map(|&i| sampson_distance(e, &self.m_a[i], &self.m_b[i]).powi(2))
+                .sum()
+        };
+        [Some(*current), linear]
+            .into_iter()
+            .flatten()
+            .filter_map(|e| refine_essential(&e, self.m_a, self.m_b, inliers, 10))
+            .map(|e| (cost(&e), e))
+            .filter(|(c, _)| c.is_finite())
+            .min_by(|x, y| x.0.total_cmp(&y.0))
+            .map(|(_, e)| e)
     }
 
     fn error(&self, e: &Matrix3<f64>, i: usize) -> f64 {
