@@ -5,5 +5,7 @@
 #![warn(missing_docs)]
 
 pub mod ba;
+pub mod exploration;
 pub mod feature_init;
+pub mod loop_closure;
 pub mod pose_graph;

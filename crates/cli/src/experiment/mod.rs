@@ -5,12 +5,15 @@ use clap::{Args, Subcommand};
 use std::path::PathBuf;
 
 pub mod cbh_jacobians;
+pub mod scale_drift;
 
 /// The experiments of the thesis.
 #[derive(Subcommand, Debug)]
 pub enum ExperimentCommand {
     /// Thesis Table 5.1: accuracy of the CBH approximations of the pose-graph Jacobian.
     CbhJacobians(CbhArgs),
+    /// Thesis §5.4: scale drift in monocular SLAM, SE(3) vs Sim(3) loop closure (Fig. 5.4–5.6).
+    ScaleDrift(scale_drift::ScaleDriftArgs),
 }
 
 /// Options of `dwslam experiment cbh-jacobians`.
@@ -31,6 +34,7 @@ pub struct CbhArgs {
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::CbhJacobians(args) => run_cbh(args),
+        ExperimentCommand::ScaleDrift(args) => scale_drift::run(args),
     }
 }
 
