@@ -6,3 +6,9 @@
 
 pub mod ba;
 pub mod pose_graph;
+pub mod dense;
+pub mod filter;
+pub mod features;
+pub mod bootstrap;
+pub mod ba_slam;
+pub mod filter_slam;
