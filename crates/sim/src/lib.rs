@@ -7,3 +7,5 @@ pub mod ba_scene;
 pub mod sensor;
 pub mod trajectory;
 pub mod world;
+pub mod preliminary;
+pub mod why_filter;
