@@ -4,8 +4,8 @@
 #![warn(missing_docs)]
 
 pub mod ba_scene;
+pub mod preliminary;
 pub mod sensor;
 pub mod trajectory;
-pub mod world;
-pub mod preliminary;
 pub mod why_filter;
+pub mod world;

@@ -264,9 +264,9 @@ fn measure<S: Sensor<N>, const N: usize>(
                 .iter()
                 .enumerate()
                 .filter_map(|(j, y)| {
-                    sensor.predict(t, y).map(|z| {
-                        (j, z + SVector::<f64, N>::from_fn(|_, _| noise.sample(rng)))
-                    })
+                    sensor
+                        .predict(t, y)
+                        .map(|z| (j, z + SVector::<f64, N>::from_fn(|_, _| noise.sample(rng))))
                 })
                 .collect()
         })
@@ -343,8 +343,7 @@ pub fn run_trial(spec: &TrialSpec) -> TrialResult {
                     let psi = camera.inverse_depth_from(&z, 1.0)?;
                     Some((
                         *id,
-                        t0.inverse()
-                            .act(&slam::ba::inverse_depth_to_point(&psi)),
+                        t0.inverse().act(&slam::ba::inverse_depth_to_point(&psi)),
                     ))
                 })
                 .collect();
@@ -409,9 +408,15 @@ pub fn run_trial(spec: &TrialSpec) -> TrialResult {
                 .filter_map(|id| boot.filter.point_world(*id).map(|y| (*id, y)))
                 .collect();
             let init = TwoViewInverseDepth { iterations };
-            let ba = run_ba(camera, &t0, &points, &frames, ba_options, Some(&init), |t| {
-                mono_error(&t_true, &relative_end(&t0, t))
-            });
+            let ba = run_ba(
+                camera,
+                &t0,
+                &points,
+                &frames,
+                ba_options,
+                Some(&init),
+                |t| mono_error(&t_true, &relative_end(&t0, t)),
+            );
             let filter = run_filter(
                 boot.filter,
                 2,
@@ -502,7 +507,11 @@ fn pipeline_stats(results: &[&PipelineResult]) -> PipelineStats {
         failures: results.len() - k,
         ..Default::default()
     };
-    let costs: Vec<&PipelineResult> = results.iter().copied().filter(|r| r.error.is_some()).collect();
+    let costs: Vec<&PipelineResult> = results
+        .iter()
+        .copied()
+        .filter(|r| r.error.is_some())
+        .collect();
     if !costs.is_empty() {
         s.cost_total = costs.iter().map(|r| r.cost_total).sum::<f64>() / costs.len() as f64;
         s.cost_joint = costs.iter().map(|r| r.cost_joint).sum::<f64>() / costs.len() as f64;
@@ -519,10 +528,9 @@ fn pipeline_stats(results: &[&PipelineResult]) -> PipelineStats {
         .sum::<f64>()
         / k as f64)
         .sqrt();
-    let mean = ok
-        .iter()
-        .fold(DVector::zeros(dim), |a, e| a + DVector::from_column_slice(e))
-        / k as f64;
+    let mean = ok.iter().fold(DVector::zeros(dim), |a, e| {
+        a + DVector::from_column_slice(e)
+    }) / k as f64;
     let mut cov = DMatrix::zeros(dim, dim);
     for e in &ok {
         let d = DVector::from_column_slice(e) - &mean;
@@ -588,7 +596,12 @@ pub fn summarize(results: &[(TrialSpec, TrialResult)]) -> Vec<CellStats> {
         let (bm, bn) = setting.entropy_base(sensor);
         let base = cells
             .iter()
-            .find(|c| c.setting == cells[k].setting && c.sensor == cells[k].sensor && c.m == bm && c.n == bn)
+            .find(|c| {
+                c.setting == cells[k].setting
+                    && c.sensor == cells[k].sensor
+                    && c.m == bm
+                    && c.n == bn
+            })
             .map(|c| (c.ba.ln_det_covariance, c.filter.ln_det_covariance));
         if let Some((b_ba, b_f)) = base {
             cells[k].ba.entropy_reduction = (b_ba - cells[k].ba.ln_det_covariance) * bits;
@@ -720,8 +733,14 @@ mod tests {
         for (setting, max_shared) in [(Setting::II, 0.3), (Setting::III, 0.3), (Setting::IV, 0.0)] {
             let scene = setting.scene(&mut rng);
             let traj = setting.trajectory(2);
-            let first: Vec<bool> = scene.iter().map(|y| mono.predict(&traj[0], y).is_some()).collect();
-            let last: Vec<bool> = scene.iter().map(|y| mono.predict(&traj[2], y).is_some()).collect();
+            let first: Vec<bool> = scene
+                .iter()
+                .map(|y| mono.predict(&traj[0], y).is_some())
+                .collect();
+            let last: Vec<bool> = scene
+                .iter()
+                .map(|y| mono.predict(&traj[2], y).is_some())
+                .collect();
             let n_first = first.iter().filter(|v| **v).count();
             let shared = first.iter().zip(&last).filter(|(a, b)| **a && **b).count();
             assert!(n_first > 500, "{setting:?}: {n_first} visible");
@@ -749,11 +768,25 @@ mod tests {
             for sensor in [SensorKind::Stereo, SensorKind::Mono] {
                 for n in [30, 120] {
                     let m = setting.m_grid()[1];
-                    let r = run_trial(&TrialSpec { setting, sensor, m, n, trial: 0, seed: 1 });
-                    let norm = |p: &PipelineResult| p.error.as_ref().map(|e| e.iter().map(|x| x * x).sum::<f64>().sqrt());
+                    let r = run_trial(&TrialSpec {
+                        setting,
+                        sensor,
+                        m,
+                        n,
+                        trial: 0,
+                        seed: 1,
+                    });
+                    let norm = |p: &PipelineResult| {
+                        p.error
+                            .as_ref()
+                            .map(|e| e.iter().map(|x| x * x).sum::<f64>().sqrt())
+                    };
                     println!(
                         "{setting:?} {sensor:?} M={m} N={n}: BA {:?} ({:.4}s) filter {:?} ({:.4}s)",
-                        norm(&r.ba), r.ba.cost_total, norm(&r.filter), r.filter.cost_total
+                        norm(&r.ba),
+                        r.ba.cost_total,
+                        norm(&r.filter),
+                        r.filter.cost_total
                     );
                 }
             }

@@ -134,8 +134,11 @@ impl<C: InverseDepthCamera<2>> PointInitializer<C> for TwoViewInverseDepth {
             return None;
         }
         let psi = *problem.value(psi);
-        (psi.z > crate::ba::MIN_INVERSE_DEPTH)
-            .then(|| anchor_from_world.inverse().act(&inverse_depth_to_point(&psi)))
+        (psi.z > crate::ba::MIN_INVERSE_DEPTH).then(|| {
+            anchor_from_world
+                .inverse()
+                .act(&inverse_depth_to_point(&psi))
+        })
     }
 }
 
@@ -396,7 +399,11 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         ) else {
             return;
         };
-        if ba.problem.optimize(&solver_options(self.options.iterations)).is_ok() {
+        if ba
+            .problem
+            .optimize(&solver_options(self.options.iterations))
+            .is_ok()
+        {
             self.keyframes = ba.camera_from_world();
             self.points = ba.points_world();
         }

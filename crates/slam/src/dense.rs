@@ -68,7 +68,9 @@ mod tests {
     fn spd(n: usize, seed: u64) -> DMatrix<f64> {
         let mut s = seed;
         let a = DMatrix::from_fn(n, n, |_, _| {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 33) as f64 / (1u64 << 31) as f64) - 0.5
         });
         &a * a.transpose() + DMatrix::identity(n, n) * 0.1

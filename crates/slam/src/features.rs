@@ -101,9 +101,7 @@ pub fn split_lost<const N: usize>(
     tracked: &[usize],
     frame: &FrameMeasurements<N>,
 ) -> (Vec<usize>, Vec<usize>) {
-    tracked
-        .iter()
-        .partition(|id| find(frame, **id).is_some())
+    tracked.iter().partition(|id| find(frame, **id).is_some())
 }
 
 /// Replacements for `count` lost features (thesis Alg. 3 and 5, "initialise n new points"):
@@ -145,10 +143,7 @@ mod tests {
             frame.push((k, Vector2::new(u, v)));
         }
         for k in 0..64 {
-            let (u, v) = (
-                330.0 + (k % 8) as f64 * 38.0,
-                10.0 + (k / 8) as f64 * 58.0,
-            );
+            let (u, v) = (330.0 + (k % 8) as f64 * 38.0, 10.0 + (k / 8) as f64 * 58.0);
             frame.push((1000 + k, Vector2::new(u, v)));
         }
         let ids: Vec<usize> = frame.iter().map(|(i, _)| *i).collect();

@@ -262,7 +262,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
 
     /// `ψ` and anchor of point `id`.
     pub fn inverse_depth_point(&self, id: usize) -> Option<(Vector3<f64>, Anchor)> {
-        self.index.get(&id).map(|&k| (self.points[k].psi, self.points[k].anchor))
+        self.index
+            .get(&id)
+            .map(|&k| (self.points[k].psi, self.points[k].anchor))
     }
 
     /// Point `id` in world coordinates, `T_a⁻¹·Π(ψ)` (thesis §3.4.4); `None` if unknown or at
@@ -382,9 +384,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     /// Keeps the current pose as an anchor pose (thesis Alg. 5: "old pose is a new anchor
     /// pose"); it can then anchor new points.
     pub fn current_to_anchor(&mut self) -> Result<(), FilterError> {
-        let (frame, pose) = self
-            .current
-            .ok_or(FilterError::CurrentPose("no current pose to make an anchor"))?;
+        let (frame, pose) = self.current.ok_or(FilterError::CurrentPose(
+            "no current pose to make an anchor",
+        ))?;
         let a = 6 * self.anchors.len();
         let c = self.current_offset();
         let n = self.info.nrows();
@@ -402,7 +404,11 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
 
     /// Marginalises the given points out of the state (ids not in the state are ignored).
     pub fn marginalize_points(&mut self, ids: &[usize]) -> Result<(), FilterError> {
-        let mut remove_points: Vec<usize> = ids.iter().filter_map(|id| self.index.get(id)).copied().collect();
+        let mut remove_points: Vec<usize> = ids
+            .iter()
+            .filter_map(|id| self.index.get(id))
+            .copied()
+            .collect();
         if remove_points.is_empty() {
             return Ok(());
         }
@@ -445,8 +451,8 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
                 o..o + 6
             })
             .collect();
-        self.info = marginalize(&self.info, &remove)
-            .ok_or(FilterError::NotPositiveDefinite("anchors"))?;
+        self.info =
+            marginalize(&self.info, &remove).ok_or(FilterError::NotPositiveDefinite("anchors"))?;
         let mut k = 0;
         self.anchors.retain(|_| {
             let keep = !unused.contains(&k);
@@ -471,7 +477,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
             let (anchor_pose, anchor_state) = match p.anchor {
                 Anchor::Origin => (self.origin_from_world, None),
                 Anchor::Frame(f) => {
-                    let a = self.anchor_index(f).expect("anchors of points are in the state");
+                    let a = self
+                        .anchor_index(f)
+                        .expect("anchors of points are in the state");
                     (self.anchors[a].camera_from_world, Some(a))
                 }
             };
@@ -754,9 +762,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     /// `Bᵀ·Λ_cc·B` and `Λ_xc·B`. The remaining map information has full rank and carries the
     /// scale prior `|t| = 1`.
     pub fn marginalize_current_unit_translation(&mut self) -> Result<(), FilterError> {
-        let (_, t) = self.current.ok_or(FilterError::CurrentPose(
-            "no current pose to marginalise",
-        ))?;
+        let (_, t) = self
+            .current
+            .ok_or(FilterError::CurrentPose("no current pose to marginalise"))?;
         let dir = t.translation().normalize();
         let helper = if dir.x.abs() < 0.9 {
             Vector3::x()
@@ -781,8 +789,8 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
         tr.view_mut((c, c), (6, 5)).copy_from(&basis);
         let reduced = tr.transpose() * &self.info * &tr;
         let remove: Vec<usize> = (c..c + 5).collect();
-        self.info = marginalize(&reduced, &remove)
-            .ok_or(FilterError::NotPositiveDefinite("5-DoF pose"))?;
+        self.info =
+            marginalize(&reduced, &remove).ok_or(FilterError::NotPositiveDefinite("5-DoF pose"))?;
         self.current = None;
         Ok(())
     }
@@ -829,7 +837,14 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
                 measurement: *z,
             })
             .collect();
-        motion_only(&self.camera, initial, &points, &observations, self.sigma, iterations)
+        motion_only(
+            &self.camera,
+            initial,
+            &points,
+            &observations,
+            self.sigma,
+            iterations,
+        )
     }
 
     /// Pose estimation given the Gaussian map prior `⟨Φ, Σ_Φ⟩` (thesis Alg. 6, Eade 2008):
@@ -885,12 +900,12 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
                 d.rows_mut(r0, N).copy_from(&(lin.predicted - z));
                 j_t.view_mut((r0, 0), (N, 6)).copy_from(&lin.d_observer);
                 let so = sub_of_point[k];
-                j_phi.view_mut((r0, so), (N, 3)).copy_from(&lin.d_inverse_depth);
+                j_phi
+                    .view_mut((r0, so), (N, 3))
+                    .copy_from(&lin.d_inverse_depth);
                 if let Anchor::Frame(f) = p.anchor {
                     let a = self.anchor_index(f).expect("in state");
-                    j_phi
-                        .view_mut((r0, 6 * a), (N, 6))
-                        .copy_from(&lin.d_anchor);
+                    j_phi.view_mut((r0, 6 * a), (N, 6)).copy_from(&lin.d_anchor);
                 }
             }
             Some((j_phi, j_t, d))
@@ -939,7 +954,11 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
                     damping *= 10.0;
                     continue;
                 };
-                let s_new = if exact { innovation(&j_phi_new) } else { s.clone() };
+                let s_new = if exact {
+                    innovation(&j_phi_new)
+                } else {
+                    s.clone()
+                };
                 let Some(sinv_new) = solve(&s_new, &j_t_new, &d_new) else {
                     damping *= 10.0;
                     continue;
@@ -976,4 +995,3 @@ fn add_block<const R: usize, const C: usize>(
     let mut v = h.fixed_view_mut::<R, C>(r, c);
     v += m;
 }
-

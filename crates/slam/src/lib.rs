@@ -5,10 +5,10 @@
 #![warn(missing_docs)]
 
 pub mod ba;
-pub mod pose_graph;
-pub mod dense;
-pub mod filter;
-pub mod features;
-pub mod bootstrap;
 pub mod ba_slam;
+pub mod bootstrap;
+pub mod dense;
+pub mod features;
+pub mod filter;
 pub mod filter_slam;
+pub mod pose_graph;
