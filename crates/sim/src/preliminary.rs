@@ -87,9 +87,9 @@ pub fn end_pose_covariance(
         let h_inv = h_jj.try_inverse()?;
         for a in 0..m {
             let wa = w_blocks[a] * h_inv;
-            for b in 0..m {
+            for (b, wb) in w_blocks.iter().enumerate() {
                 let mut block = s.fixed_view_mut::<6, 6>(6 * a, 6 * b);
-                block -= wa * w_blocks[b].transpose();
+                block -= wa * wb.transpose();
             }
         }
     }

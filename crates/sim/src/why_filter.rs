@@ -286,7 +286,7 @@ fn relative_end(t0: &Se3, tm: &Se3) -> Vector3<f64> {
 /// tangent plane at `t_true`, in an orthonormal basis of that plane.
 pub fn mono_error(t_true: &Vector3<f64>, t_est: &Vector3<f64>) -> Option<Vec<f64>> {
     let n = t_est.norm();
-    if !(n > 0.0) || !n.is_finite() {
+    if n.is_nan() || n <= 0.0 || !n.is_finite() {
         return None;
     }
     let scaled = t_est * (t_true.norm() / n);
@@ -759,38 +759,6 @@ mod tests {
         assert!(e.iter().all(|x| x.abs() < 1e-15));
         let e = mono_error(&t, &Vector3::new(0.5, 0.01, 0.0)).unwrap();
         assert!((e[0].hypot(e[1]) - 0.01).abs() < 1e-4);
-    }
-
-    #[test]
-    #[ignore]
-    fn print_some_trials() {
-        for setting in Setting::ALL {
-            for sensor in [SensorKind::Stereo, SensorKind::Mono] {
-                for n in [30, 120] {
-                    let m = setting.m_grid()[1];
-                    let r = run_trial(&TrialSpec {
-                        setting,
-                        sensor,
-                        m,
-                        n,
-                        trial: 0,
-                        seed: 1,
-                    });
-                    let norm = |p: &PipelineResult| {
-                        p.error
-                            .as_ref()
-                            .map(|e| e.iter().map(|x| x * x).sum::<f64>().sqrt())
-                    };
-                    println!(
-                        "{setting:?} {sensor:?} M={m} N={n}: BA {:?} ({:.4}s) filter {:?} ({:.4}s)",
-                        norm(&r.ba),
-                        r.ba.cost_total,
-                        norm(&r.filter),
-                        r.filter.cost_total
-                    );
-                }
-            }
-        }
     }
 
     #[test]

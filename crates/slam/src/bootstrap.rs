@@ -111,7 +111,7 @@ pub fn bootstrap(
     filter.optimize(&z_b1, &settings)?;
     let (_, t_b1) = filter.current().expect("current set");
     let parallax = median_parallax(&filter, &features, &t_b1);
-    if !(parallax >= options.min_parallax) {
+    if parallax.is_nan() || parallax < options.min_parallax {
         return Err(BootstrapError::InsufficientParallax {
             got: parallax,
             min: options.min_parallax,

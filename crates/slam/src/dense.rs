@@ -24,6 +24,35 @@ pub fn cholesky_solve_in_place(a: &DMatrix<f64>, b: &mut DMatrix<f64>) -> bool {
     b.iter().all(|x| x.is_finite())
 }
 
+/// The Cholesky factor of a symmetric positive-definite matrix, for repeated solves.
+pub struct SpdFactor {
+    llt: faer::linalg::solvers::Llt<f64>,
+    n: usize,
+}
+
+impl SpdFactor {
+    /// Factorises `a`; `None` if it is not positive definite.
+    pub fn new(a: &DMatrix<f64>) -> Option<Self> {
+        let n = a.nrows();
+        let a_ref = MatRef::from_column_major_slice(a.as_slice(), n, n);
+        a_ref.llt(Side::Lower).ok().map(|llt| SpdFactor { llt, n })
+    }
+
+    /// Solves `A·X = B` in place; false if the result is not finite.
+    pub fn solve_in_place(&self, b: &mut DMatrix<f64>) -> bool {
+        debug_assert_eq!(b.nrows(), self.n);
+        let k = b.ncols();
+        if self.n > 0 {
+            self.llt.solve_in_place(MatMut::from_column_major_slice_mut(
+                b.as_mut_slice(),
+                self.n,
+                k,
+            ));
+        }
+        b.iter().all(|x| x.is_finite())
+    }
+}
+
 /// `A⁻¹` of a symmetric positive-definite `A`, or `None`.
 pub fn spd_inverse(a: &DMatrix<f64>) -> Option<DMatrix<f64>> {
     let mut x = DMatrix::identity(a.nrows(), a.nrows());

@@ -27,7 +27,7 @@
 
 use crate::ba::{Observation, Projector, inverse_depth_to_point, linearize_anchored};
 use crate::ba_slam::motion_only;
-use crate::dense::{cholesky_solve_in_place, marginalize, spd_inverse};
+use crate::dense::{SpdFactor, cholesky_solve_in_place, marginalize, spd_inverse};
 use geom::{PinholeCamera, StereoCamera};
 use lie::{LieGroup, Se3};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector3, Vector6};
@@ -316,39 +316,56 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
         anchor: Anchor,
         default_inverse_depth: f64,
     ) -> Result<(), FilterError> {
-        if self.index.contains_key(&id) {
-            return Err(FilterError::DuplicatePoint(id));
-        }
+        self.add_points(&[(id, *z)], anchor, default_inverse_depth)
+    }
+
+    /// [`add_point`](Self::add_point) for several points with one anchor, growing the
+    /// information matrix once; all or none are added.
+    pub fn add_points(
+        &mut self,
+        points: &[(usize, SVector<f64, N>)],
+        anchor: Anchor,
+        default_inverse_depth: f64,
+    ) -> Result<(), FilterError> {
         if let Anchor::Frame(f) = anchor
             && self.anchor_index(f).is_none()
         {
             return Err(FilterError::UnknownAnchor(f));
         }
-        let psi = self
-            .camera
-            .inverse_depth_from(z, default_inverse_depth)
-            .filter(|p| p.iter().all(|x| x.is_finite()) && p.z > crate::ba::MIN_INVERSE_DEPTH)
-            .ok_or(FilterError::InvalidMeasurement(id))?;
-        let lin = linearize_anchored(&self.camera, &Se3::identity(), &Se3::identity(), &psi)
-            .ok_or(FilterError::InvalidMeasurement(id))?;
-        let j = lin.d_inverse_depth;
-        let prior = j.transpose() * j / (self.sigma * self.sigma);
-        let has_depth = prior.determinant() > 1e-12 * prior.trace().powi(3);
+        let mut new = Vec::with_capacity(points.len());
+        for (k, (id, z)) in points.iter().enumerate() {
+            if self.index.contains_key(id) || points[..k].iter().any(|(i, _)| i == id) {
+                return Err(FilterError::DuplicatePoint(*id));
+            }
+            let psi = self
+                .camera
+                .inverse_depth_from(z, default_inverse_depth)
+                .filter(|p| p.iter().all(|x| x.is_finite()) && p.z > crate::ba::MIN_INVERSE_DEPTH)
+                .ok_or(FilterError::InvalidMeasurement(*id))?;
+            let lin = linearize_anchored(&self.camera, &Se3::identity(), &Se3::identity(), &psi)
+                .ok_or(FilterError::InvalidMeasurement(*id))?;
+            let j = lin.d_inverse_depth;
+            let prior = j.transpose() * j / (self.sigma * self.sigma);
+            let has_depth = prior.determinant() > 1e-12 * prior.trace().powi(3);
+            new.push((*id, psi, prior, has_depth));
+        }
         let at = self.current_offset();
-        let n = self.info.nrows();
+        let k = 3 * new.len();
         let mut info = std::mem::replace(&mut self.info, DMatrix::zeros(0, 0))
-            .insert_rows(at, 3, 0.0)
-            .insert_columns(at, 3, 0.0);
-        debug_assert_eq!(info.nrows(), n + 3);
-        info.view_mut((at, at), (3, 3)).copy_from(&prior);
+            .insert_rows(at, k, 0.0)
+            .insert_columns(at, k, 0.0);
+        for (q, (id, psi, prior, has_depth)) in new.into_iter().enumerate() {
+            info.fixed_view_mut::<3, 3>(at + 3 * q, at + 3 * q)
+                .copy_from(&prior);
+            self.points.push(PointState {
+                id,
+                psi,
+                anchor,
+                has_depth,
+            });
+            self.index.insert(id, self.points.len() - 1);
+        }
         self.info = info;
-        self.points.push(PointState {
-            id,
-            psi,
-            anchor,
-            has_depth,
-        });
-        self.index.insert(id, self.points.len() - 1);
         Ok(())
     }
 
@@ -887,8 +904,15 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
         let rows = N * obs.len();
         let w = self.sigma * self.sigma;
         // J_Φ (dense rows × m; sparse in practice), J_T and d at a pose.
-        let linearize_at = |t: &Se3| -> Option<(DMatrix<f64>, DMatrix<f64>, DVector<f64>)> {
-            let mut j_phi = DMatrix::zeros(rows, m);
+        // J_Φ is sparse: per observation a 3-column block at the point and, for a point
+        // anchored in the state, a 6-column block at its anchor.
+        type SparseRow<const N: usize> = (
+            usize,
+            SMatrix<f64, N, 3>,
+            Option<(usize, SMatrix<f64, N, 6>)>,
+        );
+        let linearize_at = |t: &Se3| -> Option<(Vec<SparseRow<N>>, DMatrix<f64>, DVector<f64>)> {
+            let mut j_phi = Vec::with_capacity(obs.len());
             let mut j_t = DMatrix::zeros(rows, 6);
             let mut d = DVector::zeros(rows);
             for (r, (id, z)) in obs.iter().enumerate() {
@@ -899,36 +923,52 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
                 let r0 = N * r;
                 d.rows_mut(r0, N).copy_from(&(lin.predicted - z));
                 j_t.view_mut((r0, 0), (N, 6)).copy_from(&lin.d_observer);
-                let so = sub_of_point[k];
-                j_phi
-                    .view_mut((r0, so), (N, 3))
-                    .copy_from(&lin.d_inverse_depth);
-                if let Anchor::Frame(f) = p.anchor {
-                    let a = self.anchor_index(f).expect("in state");
-                    j_phi.view_mut((r0, 6 * a), (N, 6)).copy_from(&lin.d_anchor);
-                }
+                let a = match p.anchor {
+                    Anchor::Frame(f) => {
+                        Some((6 * self.anchor_index(f).expect("in state"), lin.d_anchor))
+                    }
+                    Anchor::Origin => None,
+                };
+                j_phi.push((sub_of_point[k], lin.d_inverse_depth, a));
             }
             Some((j_phi, j_t, d))
         };
-        let innovation = |j_phi: &DMatrix<f64>| -> DMatrix<f64> {
-            let mut s = j_phi * &sigma_phi * j_phi.transpose();
+        // S = J_Φ Σ_Φ J_Φᵀ + Σ_z, through Y = Σ_Φ J_Φᵀ (m × rows).
+        let innovation = |j_phi: &[SparseRow<N>]| -> DMatrix<f64> {
+            let mut y = DMatrix::<f64>::zeros(m, rows);
+            for (r, (so, jp, ja)) in j_phi.iter().enumerate() {
+                let mut block = y.columns_mut(N * r, N);
+                block.gemm(1.0, &sigma_phi.columns(*so, 3), &jp.transpose(), 0.0);
+                if let Some((ao, ja)) = ja {
+                    block.gemm(1.0, &sigma_phi.columns(*ao, 6), &ja.transpose(), 1.0);
+                }
+            }
+            let mut s = DMatrix::<f64>::zeros(rows, rows);
+            for (r, (so, jp, ja)) in j_phi.iter().enumerate() {
+                let mut block = s.rows_mut(N * r, N);
+                block.gemm(1.0, jp, &y.rows(*so, 3), 0.0);
+                if let Some((ao, ja)) = ja {
+                    block.gemm(1.0, ja, &y.rows(*ao, 6), 1.0);
+                }
+            }
             for i in 0..rows {
                 s[(i, i)] += w;
             }
             s
         };
-        // χ² = dᵀS⁻¹d, and S⁻¹[J_T | d].
-        let solve = |s: &DMatrix<f64>, j_t: &DMatrix<f64>, d: &DVector<f64>| {
+        // S⁻¹[J_T | d], and χ² = dᵀS⁻¹d from its last column.
+        let solve = |s: &SpdFactor, j_t: &DMatrix<f64>, d: &DVector<f64>| {
             let mut rhs = DMatrix::zeros(rows, 7);
             rhs.view_mut((0, 0), (rows, 6)).copy_from(j_t);
             rhs.column_mut(6).copy_from(d);
-            cholesky_solve_in_place(s, &mut rhs).then_some(rhs)
+            s.solve_in_place(&mut rhs).then_some(rhs)
         };
         let mut t = *initial;
         let Some((j_phi, mut j_t, d)) = linearize_at(&t) else {
             return Ok(t);
         };
-        let mut s = innovation(&j_phi);
+        let mut s =
+            SpdFactor::new(&innovation(&j_phi)).ok_or(FilterError::NotPositiveDefinite("S"))?;
         let mut sinv = solve(&s, &j_t, &d).ok_or(FilterError::NotPositiveDefinite("S"))?;
         let mut chi2 = d.dot(&sinv.column(6));
         let mut mu: Option<f64> = None;
@@ -955,11 +995,17 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
                     continue;
                 };
                 let s_new = if exact {
-                    innovation(&j_phi_new)
+                    match SpdFactor::new(&innovation(&j_phi_new)) {
+                        Some(f) => Some(f),
+                        None => {
+                            damping *= 10.0;
+                            continue;
+                        }
+                    }
                 } else {
-                    s.clone()
+                    None
                 };
-                let Some(sinv_new) = solve(&s_new, &j_t_new, &d_new) else {
+                let Some(sinv_new) = solve(s_new.as_ref().unwrap_or(&s), &j_t_new, &d_new) else {
                     damping *= 10.0;
                     continue;
                 };
@@ -968,7 +1014,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
                     t = t_new;
                     chi2 = chi2_new;
                     j_t = j_t_new;
-                    s = s_new;
+                    if let Some(f) = s_new {
+                        s = f;
+                    }
                     sinv = sinv_new;
                     improved = true;
                     break;

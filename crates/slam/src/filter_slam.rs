@@ -162,13 +162,25 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
                 self.options.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
             );
             let mut tracked = kept;
-            for id in new {
-                self.used.insert(id);
-                let z = find(previous, id).expect("selected from the previous frame");
-                // In the anchor frame: the measurement itself (anchor = T_{i−1}, or the
-                // origin when T_{i−1} is the origin).
-                if self.filter.add_point(id, &z, anchor, q0).is_ok() {
-                    tracked.push(id);
+            // Measured in the anchor frame (T_{i−1}, or the origin when T_{i−1} is it).
+            let new: Vec<(usize, SVector<f64, N>)> = new
+                .into_iter()
+                .map(|id| {
+                    (
+                        id,
+                        find(previous, id).expect("selected from the previous frame"),
+                    )
+                })
+                .collect();
+            self.used.extend(new.iter().map(|(id, _)| *id));
+            if self.filter.add_points(&new, anchor, q0).is_ok() {
+                tracked.extend(new.iter().map(|(id, _)| *id));
+            } else {
+                // One invalid measurement (e.g. a stereo disparity ≤ 0): add them one by one.
+                for (id, z) in &new {
+                    if self.filter.add_point(*id, z, anchor, q0).is_ok() {
+                        tracked.push(*id);
+                    }
                 }
             }
             self.tracked = tracked;
