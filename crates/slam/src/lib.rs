@@ -8,6 +8,7 @@ pub mod ba;
 pub mod ba_slam;
 pub mod bootstrap;
 pub mod dense;
+pub mod feature_init;
 pub mod features;
 pub mod filter;
 pub mod filter_slam;
