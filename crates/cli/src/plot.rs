@@ -71,29 +71,41 @@ pub const PALETTE: [RGBColor; 6] = [
 /// Grey for reference data (e.g. initial or ground-truth trajectories).
 pub const GREY: RGBColor = RGBColor(150, 150, 150);
 
+/// Renders into `path` (`.png` or `.svg`, 1000×800 pixels) with `$draw` called on the root
+/// drawing area of the backend the extension names (a macro: the two backends are different
+/// types).
+macro_rules! render {
+    ($path:expr, |$root:ident| $draw:expr) => {{
+        let path: &Path = $path;
+        register_font();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("png") => {
+                let $root = &BitMapBackend::new(path, (1000, 800)).into_drawing_area();
+                $draw?;
+                $root
+                    .present()
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+            Some("svg") => {
+                let $root = &SVGBackend::new(path, (1000, 800)).into_drawing_area();
+                $draw?;
+                $root
+                    .present()
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+            _ => bail!("{}: plots are written as .png or .svg", path.display()),
+        }
+        Ok(())
+    }};
+}
+
 /// Draws `series` into `path` (`.png` or `.svg`), 1000×800 pixels.
 pub fn plot(path: &Path, figure: &Figure, series: &[Series]) -> Result<()> {
-    register_font();
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("png") => {
-            let root = BitMapBackend::new(path, (1000, 800)).into_drawing_area();
-            draw(&root, figure, series)?;
-            root.present()
-                .with_context(|| format!("writing {}", path.display()))?;
-        }
-        Some("svg") => {
-            let root = SVGBackend::new(path, (1000, 800)).into_drawing_area();
-            draw(&root, figure, series)?;
-            root.present()
-                .with_context(|| format!("writing {}", path.display()))?;
-        }
-        _ => bail!("{}: plots are written as .png or .svg", path.display()),
-    }
-    Ok(())
+    render!(path, |root| draw(root, figure, series))
 }
 
 fn bounds(series: &[Series], log_y: bool) -> Option<(f64, f64, f64, f64)> {
@@ -162,6 +174,7 @@ where
                 .y_desc(figure.y_label)
                 .label_style(("sans-serif", 16))
                 .axis_desc_style(("sans-serif", 18))
+                .y_label_formatter(&|v: &f64| significant(*v))
                 .draw()
                 .map_err(|e| anyhow::anyhow!("{e:?}"))?;
             for s in series {
@@ -262,6 +275,25 @@ pub fn viridis(t: f64) -> RGBColor {
     RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
 }
 
+/// `v` to three significant digits without trailing zeros (tick labels: log-scale ticks such
+/// as `0.010000000001` print as `0.01`).
+fn significant(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let magnitude = v.abs().log10().floor();
+    if !(-3.0..5.0).contains(&magnitude) {
+        return format!("{v:.2e}");
+    }
+    let decimals = (2.0 - magnitude).max(0.0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
 fn format_tick(v: f64) -> String {
     if v == v.round() && v.abs() < 1e6 {
         format!("{}", v as i64)
@@ -280,27 +312,7 @@ pub fn heatmap(path: &Path, map: &HeatMap) -> Result<()> {
             map.values.len()
         );
     }
-    register_font();
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("png") => {
-            let root = BitMapBackend::new(path, (1000, 800)).into_drawing_area();
-            draw_heatmap(&root, map)?;
-            root.present()
-                .with_context(|| format!("writing {}", path.display()))?;
-        }
-        Some("svg") => {
-            let root = SVGBackend::new(path, (1000, 800)).into_drawing_area();
-            draw_heatmap(&root, map)?;
-            root.present()
-                .with_context(|| format!("writing {}", path.display()))?;
-        }
-        _ => bail!("{}: plots are written as .png or .svg", path.display()),
-    }
-    Ok(())
+    render!(path, |root| draw_heatmap(root, map))
 }
 
 fn draw_heatmap<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, map: &HeatMap) -> Result<()>
@@ -438,6 +450,17 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn significant_digits_trim_floating_point_noise() {
+        assert_eq!(significant(0.010000000001), "0.01");
+        assert_eq!(significant(0.00234567), "0.00235");
+        assert_eq!(significant(1500.0), "1500");
+        assert_eq!(significant(2.5), "2.5");
+        assert_eq!(significant(-0.5), "-0.5");
+        assert_eq!(significant(0.0), "0");
+        assert_eq!(significant(1.5e-6), "1.50e-6");
+    }
 
     #[test]
     fn writes_png_and_svg_and_refuses_other_formats() {

@@ -13,12 +13,13 @@ use crate::ba::{
     AnchorObservation, AnchoredObservation, BaMode, BundleAdjustment, Gauge, Observation,
     Projector, inverse_depth_to_point,
 };
+use crate::clock::CpuStopwatch;
 use crate::features::{FrameMeasurements, ImageArea, find, select_replacements, split_lost};
 use crate::filter::InverseDepthCamera;
 use lie::{LieGroup, Se3};
 use nalgebra::{SVector, Vector2, Vector3};
 use std::collections::{HashMap, HashSet};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Motion-only BA of one pose against fixed world points (eq. 4.15), `iterations` LM
 /// iterations from `initial`; `initial` back if the problem cannot be solved.
@@ -154,7 +155,7 @@ pub struct BaSlamOptions {
     pub seed: u64,
 }
 
-/// Time spent in the parts of BA-SLAM (wall time of the calling thread).
+/// Time spent in the parts of BA-SLAM (CPU time of the calling thread, [`crate::clock`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BaSlamCost {
     /// Feature replacement and initialisation.
@@ -262,18 +263,13 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
 
     /// The median inverse depth of the tracked map points seen from `t`.
     fn median_inverse_depth(&self, t: &Se3) -> f64 {
-        let mut q: Vec<f64> = self
-            .tracked
-            .iter()
-            .filter_map(|id| self.point_of.get(id))
-            .map(|&k| 1.0 / t.act(&self.points[k]).z)
-            .filter(|q| q.is_finite() && *q > 0.0)
-            .collect();
-        if q.is_empty() {
-            return 1.0;
-        }
-        q.sort_by(f64::total_cmp);
-        q[q.len() / 2]
+        crate::features::median_inverse_depth(
+            t,
+            self.tracked
+                .iter()
+                .filter_map(|id| self.point_of.get(id))
+                .map(|&k| self.points[k]),
+        )
     }
 
     /// One keyframe of thesis Alg. 3: `previous` and `frame` are the measurements of keyframes
@@ -288,7 +284,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         let i = self.keyframes.len();
         let t_prev = self.current();
         // 1. Replace features that left the field of view.
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         let (kept, lost) = split_lost(&self.tracked, frame);
         let mut tracked = kept.clone();
         if !lost.is_empty() {
@@ -322,7 +318,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         self.cost.initialization += start.elapsed();
 
         // 2. Motion-only BA from T_{i−1}.
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         let mut pts = Vec::new();
         let mut obs = Vec::new();
         for id in &self.tracked {
@@ -354,7 +350,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         self.cost.motion += start.elapsed();
 
         // Monocular: triangulate the features chosen in keyframe i−1 between i−1 and i.
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         if !self.pending.is_empty() {
             let q0 = self.median_inverse_depth(&t_prev);
             for (id, z_prev) in std::mem::take(&mut self.pending) {
@@ -377,10 +373,10 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         self.cost.initialization += start.elapsed();
 
         // 3. Structure-only BA, 4. full BA with T_0 fixed.
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         self.adjust(BaMode::StructureOnly);
         self.cost.structure += start.elapsed();
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         self.adjust(BaMode::Full);
         self.cost.full += start.elapsed();
         self.current()

@@ -7,7 +7,8 @@
 //! association, as in the thesis's simulations); the first two coordinates of `z` are the
 //! (left) image position `(u, v)`.
 
-use nalgebra::SVector;
+use lie::{LieGroup, Se3};
+use nalgebra::{SVector, Vector3};
 use vision::quadtree::{QuadPoint, QuadTree};
 
 /// All measurements of one frame: `(feature id, z)`.
@@ -25,6 +26,24 @@ pub struct ImageArea {
 /// The measurement of feature `id` in `frame`, if visible.
 pub fn find<const N: usize>(frame: &FrameMeasurements<N>, id: usize) -> Option<SVector<f64, N>> {
     frame.iter().find(|(i, _)| *i == id).map(|(_, z)| *z)
+}
+
+/// The median inverse depth `1/z` of `points_world` in the frame `camera_from_world` (points
+/// behind the camera ignored), or 1 if none is in front: the start value of the depth of a
+/// new feature (thesis §4.5.1, as in PTAM and ORB-SLAM's median scene depth).
+pub fn median_inverse_depth(
+    camera_from_world: &Se3,
+    points_world: impl Iterator<Item = Vector3<f64>>,
+) -> f64 {
+    let mut q: Vec<f64> = points_world
+        .map(|y| 1.0 / camera_from_world.act(&y).z)
+        .filter(|q| q.is_finite() && *q > 0.0)
+        .collect();
+    if q.is_empty() {
+        return 1.0;
+    }
+    q.sort_by(f64::total_cmp);
+    q[q.len() / 2]
 }
 
 /// Selects up to `n` of `candidates` (feature ids measured in `frame`) spread evenly over the

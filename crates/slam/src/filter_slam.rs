@@ -8,12 +8,13 @@
 //! predicted by motion-only BA (eq. 4.15) or from the Gaussian map prior (thesis Alg. 6), then
 //! the joint update (eq. 4.18) and the information update (Alg. 4) follow.
 
+use crate::clock::CpuStopwatch;
 use crate::features::{FrameMeasurements, ImageArea, find, select_replacements, split_lost};
 use crate::filter::{Anchor, FilterError, GaussNewtonFilter, InverseDepthCamera, LmSettings};
-use lie::{LieGroup, Se3};
+use lie::Se3;
 use nalgebra::SVector;
 use std::collections::HashSet;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// How filter-SLAM predicts the new pose before the joint update (thesis §4.6.3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -41,7 +42,7 @@ pub struct FilterSlamOptions {
     pub seed: u64,
 }
 
-/// Time spent in the parts of filter-SLAM (wall time of the calling thread).
+/// Time spent in the parts of filter-SLAM (CPU time of the calling thread, [`crate::clock`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FilterSlamCost {
     /// Marginalisation and feature replacement.
@@ -113,18 +114,12 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
     }
 
     fn median_inverse_depth(&self, t: &Se3) -> f64 {
-        let mut q: Vec<f64> = self
-            .tracked
-            .iter()
-            .filter_map(|id| self.filter.point_world(*id))
-            .map(|y| 1.0 / t.act(&y).z)
-            .filter(|q| q.is_finite() && *q > 0.0)
-            .collect();
-        if q.is_empty() {
-            return 1.0;
-        }
-        q.sort_by(f64::total_cmp);
-        q[q.len() / 2]
+        crate::features::median_inverse_depth(
+            t,
+            self.tracked
+                .iter()
+                .filter_map(|id| self.filter.point_world(*id)),
+        )
     }
 
     /// One keyframe of thesis Alg. 5: `previous` and `frame` are the measurements of
@@ -136,7 +131,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
     ) -> Result<Se3, FilterError> {
         let i = self.frame + 1;
         let t_prev = self.pose;
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         let (kept, lost) = split_lost(&self.tracked, frame);
         if lost.is_empty() {
             if self.filter.current().is_some() {
@@ -193,7 +188,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
             .iter()
             .filter_map(|id| find(frame, *id).map(|z| (*id, z)))
             .collect();
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         let predicted = match self.options.motion {
             MotionEstimate::MotionOnlyBa => {
                 self.filter
@@ -206,7 +201,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
         };
         self.cost.motion += start.elapsed();
 
-        let start = Instant::now();
+        let start = CpuStopwatch::start();
         self.filter.begin_frame(i, predicted)?;
         self.filter
             .update(&obs, &LmSettings::with_iterations(self.options.iterations))?;

@@ -7,6 +7,7 @@
 pub mod ba;
 pub mod ba_slam;
 pub mod bootstrap;
+pub mod clock;
 pub mod dense;
 pub mod feature_init;
 pub mod features;

@@ -96,7 +96,7 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
         serde_json::json!({
             "setting": args.setting, "sensor": args.sensor, "trials": args.trials,
             "seed": args.seed, "workers": workers,
-            "timing": "wall time of each trial on its own single-threaded worker (rayon pool of one thread)",
+            "timing": "CPU time of the thread running each trial (one-thread rayon pool per worker; CLOCK_THREAD_CPUTIME_ID), independent of the machine load",
         }),
     );
     if preliminary {

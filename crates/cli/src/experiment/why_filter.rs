@@ -304,6 +304,23 @@ pub fn write_settings(
                 "mean": mean(&e.iter().map(|x| x.1).collect::<Vec<_>>()),
             })
         };
+        let mean_exponent = |n_min: usize, joint: bool, filter: bool| {
+            mean(
+                &exponents(&these, n_min, joint, filter)
+                    .iter()
+                    .map(|x| x.1)
+                    .collect::<Vec<_>>(),
+            )
+        };
+        writeln!(
+            table,
+            "{setting_name:<4} {sensor_name:<6} cost exponent in N (joint updates, mean over M): \
+             BA {:.2} (N ≥ 60) {:.2} (N ≥ 120); filter {:.2} (N ≥ 60) {:.2} (N ≥ 120)",
+            mean_exponent(60, true, false),
+            mean_exponent(120, true, false),
+            mean_exponent(60, true, true),
+            mean_exponent(120, true, true),
+        )?;
         let ratios: Vec<f64> = these.iter().map(|c| c.filter.rmse / c.ba.rmse).collect();
         per_group.insert(
             format!("{setting_name}/{sensor_name}"),
@@ -328,6 +345,10 @@ pub fn write_settings(
                     "ba_total_n_ge_60": exp(60, false, false),
                     "filter_joint_n_ge_60": exp(60, true, true),
                     "filter_total_n_ge_60": exp(60, false, true),
+                    "ba_joint_n_ge_120": exp(120, true, false),
+                    "ba_total_n_ge_120": exp(120, false, false),
+                    "filter_joint_n_ge_120": exp(120, true, true),
+                    "filter_total_n_ge_120": exp(120, false, true),
                     "ba_joint_all_n": exp(0, true, false),
                     "filter_joint_all_n": exp(0, true, true),
                 },
@@ -631,7 +652,8 @@ mod tests {
         }
         let (summary, table, _) = write_settings(&a, &dir).unwrap();
         assert!(summary.get("i/stereo").is_some() && summary.get("iv/mono").is_some());
-        assert_eq!(table.lines().count(), 1 + 2 * 2 * 2);
+        // A header, a row per cell and an exponent line per (setting, sensor).
+        assert_eq!(table.lines().count(), 1 + 2 * 2 * 2 + 2 * 2);
         // Every trial of these easy cells succeeds with a centimetre-level error.
         for (_, r) in &a {
             for p in [&r.ba, &r.filter] {
