@@ -489,6 +489,9 @@ pub struct PipelineStats {
     pub failures: usize,
     /// RMSE of `|Δt|` over the successful trials (eq. 4.31), metres.
     pub rmse: f64,
+    /// Median of `|Δt|` over the successful trials, metres (robust to the occasional gross
+    /// failure that dominates the RMSE).
+    pub median_error: f64,
     /// `ln det` of the sample covariance of `Δt`.
     pub ln_det_covariance: f64,
     /// Entropy reduction in bits against the setting's base cell (eq. 4.30); filled by
@@ -519,10 +522,21 @@ fn pipeline_stats(results: &[&PipelineResult]) -> PipelineStats {
     }
     if k == 0 {
         s.rmse = f64::NAN;
+        s.median_error = f64::NAN;
         s.ln_det_covariance = f64::NAN;
         return s;
     }
     let dim = ok[0].len();
+    let mut norms: Vec<f64> = ok
+        .iter()
+        .map(|e| e.iter().map(|x| x * x).sum::<f64>().sqrt())
+        .collect();
+    norms.sort_by(f64::total_cmp);
+    s.median_error = if k % 2 == 1 {
+        norms[k / 2]
+    } else {
+        0.5 * (norms[k / 2 - 1] + norms[k / 2])
+    };
     s.rmse = (ok
         .iter()
         .map(|e| e.iter().map(|x| x * x).sum::<f64>())
@@ -760,6 +774,26 @@ mod tests {
         assert!(e.iter().all(|x| x.abs() < 1e-15));
         let e = mono_error(&t, &Vector3::new(0.5, 0.01, 0.0)).unwrap();
         assert!((e[0].hypot(e[1]) - 0.01).abs() < 1e-4);
+    }
+
+    #[test]
+    fn pipeline_stats_rmse_median_and_failures() {
+        let r = |e: Option<Vec<f64>>| PipelineResult {
+            error: e,
+            cost_total: 1.0,
+            cost_joint: 0.5,
+        };
+        let results = [
+            r(Some(vec![3.0, 4.0])),
+            r(Some(vec![0.0, 1.0])),
+            r(Some(vec![0.0, 100.0])),
+            r(None),
+        ];
+        let s = pipeline_stats(&results.iter().collect::<Vec<_>>());
+        assert_eq!((s.successes, s.failures), (3, 1));
+        assert!((s.rmse - ((25.0 + 1.0 + 10000.0) / 3.0f64).sqrt()).abs() < 1e-12);
+        assert_eq!(s.median_error, 5.0);
+        assert_eq!(s.cost_total, 1.0);
     }
 
     #[test]

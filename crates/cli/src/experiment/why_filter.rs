@@ -224,13 +224,19 @@ pub fn write_settings(
     write(out, "trials.csv", &csv)?;
     let cells = summarize(results);
     let mut csv = String::from(
-        "setting,sensor,m,n,ba_successes,ba_failures,ba_rmse,ba_entropy_bits,ba_cost_total,ba_cost_joint,filter_successes,filter_failures,filter_rmse,filter_entropy_bits,filter_cost_total,filter_cost_joint\n",
+        "setting,sensor,m,n,ba_successes,ba_failures,ba_rmse,ba_median_error,ba_entropy_bits,ba_cost_total,ba_cost_joint,filter_successes,filter_failures,filter_rmse,filter_median_error,filter_entropy_bits,filter_cost_total,filter_cost_joint\n",
     );
     for c in &cells {
         let p = |s: &sim::why_filter::PipelineStats| {
             format!(
-                "{},{},{:.6e},{:.4},{:.6e},{:.6e}",
-                s.successes, s.failures, s.rmse, s.entropy_reduction, s.cost_total, s.cost_joint
+                "{},{},{:.6e},{:.6e},{:.4},{:.6e},{:.6e}",
+                s.successes,
+                s.failures,
+                s.rmse,
+                s.median_error,
+                s.entropy_reduction,
+                s.cost_total,
+                s.cost_joint
             )
         };
         writeln!(
@@ -328,6 +334,7 @@ pub fn write_settings(
                 "cells": these.iter().map(|c| json!({
                     "m": c.m, "n": c.n,
                     "ba_rmse": c.ba.rmse, "filter_rmse": c.filter.rmse,
+                    "ba_median_error": c.ba.median_error, "filter_median_error": c.filter.median_error,
                     "filter_over_ba_rmse": c.filter.rmse / c.ba.rmse,
                     "ba_cost_total": c.ba.cost_total, "filter_cost_total": c.filter.cost_total,
                     "ba_cost_joint": c.ba.cost_joint, "filter_cost_joint": c.filter.cost_joint,
