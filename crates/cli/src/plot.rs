@@ -25,8 +25,9 @@ pub enum Style {
     /// A polyline through the points.
     Line,
     /// A dot per point (scatter plots of the experiments).
-    #[allow(dead_code)]
     Points,
+    /// A dashed polyline (a second family of curves beside `Line`).
+    Dashed,
 }
 
 /// One data series.
@@ -70,29 +71,41 @@ pub const PALETTE: [RGBColor; 6] = [
 /// Grey for reference data (e.g. initial or ground-truth trajectories).
 pub const GREY: RGBColor = RGBColor(150, 150, 150);
 
+/// Renders into `path` (`.png` or `.svg`, 1000×800 pixels) with `$draw` called on the root
+/// drawing area of the backend the extension names (a macro: the two backends are different
+/// types).
+macro_rules! render {
+    ($path:expr, |$root:ident| $draw:expr) => {{
+        let path: &Path = $path;
+        register_font();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("png") => {
+                let $root = &BitMapBackend::new(path, (1000, 800)).into_drawing_area();
+                $draw?;
+                $root
+                    .present()
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+            Some("svg") => {
+                let $root = &SVGBackend::new(path, (1000, 800)).into_drawing_area();
+                $draw?;
+                $root
+                    .present()
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+            _ => bail!("{}: plots are written as .png or .svg", path.display()),
+        }
+        Ok(())
+    }};
+}
+
 /// Draws `series` into `path` (`.png` or `.svg`), 1000×800 pixels.
 pub fn plot(path: &Path, figure: &Figure, series: &[Series]) -> Result<()> {
-    register_font();
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("png") => {
-            let root = BitMapBackend::new(path, (1000, 800)).into_drawing_area();
-            draw(&root, figure, series)?;
-            root.present()
-                .with_context(|| format!("writing {}", path.display()))?;
-        }
-        Some("svg") => {
-            let root = SVGBackend::new(path, (1000, 800)).into_drawing_area();
-            draw(&root, figure, series)?;
-            root.present()
-                .with_context(|| format!("writing {}", path.display()))?;
-        }
-        _ => bail!("{}: plots are written as .png or .svg", path.display()),
-    }
-    Ok(())
+    render!(path, |root| draw(root, figure, series))
 }
 
 fn bounds(series: &[Series], log_y: bool) -> Option<(f64, f64, f64, f64)> {
@@ -161,6 +174,7 @@ where
                 .y_desc(figure.y_label)
                 .label_style(("sans-serif", 16))
                 .axis_desc_style(("sans-serif", 18))
+                .y_label_formatter(&|v: &f64| significant(*v))
                 .draw()
                 .map_err(|e| anyhow::anyhow!("{e:?}"))?;
             for s in series {
@@ -177,6 +191,9 @@ where
                         .map_err(|e| anyhow::anyhow!("{e:?}"))?,
                     Style::Points => chart
                         .draw_series(pts.into_iter().map(|p| Circle::new(p, 2, color.filled())))
+                        .map_err(|e| anyhow::anyhow!("{e:?}"))?,
+                    Style::Dashed => chart
+                        .draw_series(DashedLineSeries::new(pts, 8, 6, color.stroke_width(2)))
                         .map_err(|e| anyhow::anyhow!("{e:?}"))?,
                 };
                 if !s.label.is_empty() {
@@ -212,9 +229,238 @@ where
     Ok(())
 }
 
+/// A heat map: values on a grid of cells, drawn as coloured rectangles with the grid's values
+/// as tick labels (the axes may be irregular, e.g. `N` doubling) and a colour bar.
+#[derive(Clone, Debug)]
+pub struct HeatMap<'a> {
+    /// Title above the plot.
+    pub title: &'a str,
+    /// Label of the x axis.
+    pub x_label: &'a str,
+    /// Label of the y axis.
+    pub y_label: &'a str,
+    /// Label of the colour bar.
+    pub value_label: &'a str,
+    /// Column values (x), in order.
+    pub x_values: &'a [f64],
+    /// Row values (y), in order.
+    pub y_values: &'a [f64],
+    /// `values[row * x_values.len() + column]`; non-finite cells are left blank.
+    pub values: &'a [f64],
+    /// Write each cell's value into it.
+    pub annotate: bool,
+}
+
+/// A perceptually ordered colour map (viridis, piecewise linear through 6 anchors) for
+/// `t ∈ [0, 1]`.
+pub fn viridis(t: f64) -> RGBColor {
+    const ANCHORS: [(f64, f64, f64); 6] = [
+        (68.0, 1.0, 84.0),
+        (65.0, 68.0, 135.0),
+        (42.0, 120.0, 142.0),
+        (34.0, 168.0, 132.0),
+        (122.0, 209.0, 81.0),
+        (253.0, 231.0, 37.0),
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let x = t * (ANCHORS.len() - 1) as f64;
+    let k = (x.floor() as usize).min(ANCHORS.len() - 2);
+    let f = x - k as f64;
+    let (a, b) = (ANCHORS[k], ANCHORS[k + 1]);
+    let mix = |p: f64, q: f64| (p + (q - p) * f).round() as u8;
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// `v` to three significant digits without trailing zeros (tick labels: log-scale ticks such
+/// as `0.010000000001` print as `0.01`).
+fn significant(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let magnitude = v.abs().log10().floor();
+    if !(-3.0..5.0).contains(&magnitude) {
+        return format!("{v:.2e}");
+    }
+    let decimals = (2.0 - magnitude).max(0.0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
+fn format_tick(v: f64) -> String {
+    if v == v.round() && v.abs() < 1e6 {
+        format!("{}", v as i64)
+    } else {
+        format!("{v:.3}")
+    }
+}
+
+/// Draws a heat map into `path` (`.png` or `.svg`), 1000×800 pixels.
+pub fn heatmap(path: &Path, map: &HeatMap) -> Result<()> {
+    let (nx, ny) = (map.x_values.len(), map.y_values.len());
+    if nx * ny != map.values.len() || nx == 0 || ny == 0 {
+        bail!(
+            "heat map {}: {} values for a {nx}×{ny} grid",
+            path.display(),
+            map.values.len()
+        );
+    }
+    render!(path, |root| draw_heatmap(root, map))
+}
+
+fn draw_heatmap<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, map: &HeatMap) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow::anyhow!("{e:?}");
+    root.fill(&WHITE).map_err(err)?;
+    let (nx, ny) = (map.x_values.len(), map.y_values.len());
+    let finite: Vec<f64> = map
+        .values
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    let (lo, hi) = finite
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    let (lo, hi) = if lo.is_finite() && hi > lo {
+        (lo, hi)
+    } else if lo.is_finite() {
+        (lo - 0.5, lo + 0.5)
+    } else {
+        (0.0, 1.0)
+    };
+    let (main, bar) = root.split_horizontally(860);
+    let mut chart = ChartBuilder::on(&main)
+        .caption(map.title, ("sans-serif", 26))
+        .margin(20)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(-0.5..nx as f64 - 0.5, -0.5..ny as f64 - 0.5)
+        .map_err(err)?;
+    let xv = map.x_values.to_vec();
+    let yv = map.y_values.to_vec();
+    let x_fmt = move |v: &f64| {
+        let k = v.round();
+        if (v - k).abs() < 1e-6 && k >= 0.0 && (k as usize) < xv.len() {
+            format_tick(xv[k as usize])
+        } else {
+            String::new()
+        }
+    };
+    let y_fmt = move |v: &f64| {
+        let k = v.round();
+        if (v - k).abs() < 1e-6 && k >= 0.0 && (k as usize) < yv.len() {
+            format_tick(yv[k as usize])
+        } else {
+            String::new()
+        }
+    };
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_labels(nx.min(40))
+        .y_labels(ny.min(40))
+        .x_label_formatter(&x_fmt)
+        .y_label_formatter(&y_fmt)
+        .x_desc(map.x_label)
+        .y_desc(map.y_label)
+        .label_style(("sans-serif", 14))
+        .axis_desc_style(("sans-serif", 18))
+        .draw()
+        .map_err(err)?;
+    let color = |v: f64| viridis((v - lo) / (hi - lo));
+    chart
+        .draw_series(
+            (0..ny)
+                .flat_map(|r| (0..nx).map(move |c| (r, c)))
+                .filter_map(|(r, c)| {
+                    let v = map.values[r * nx + c];
+                    v.is_finite().then(|| {
+                        Rectangle::new(
+                            [
+                                (c as f64 - 0.5, r as f64 - 0.5),
+                                (c as f64 + 0.5, r as f64 + 0.5),
+                            ],
+                            color(v).filled(),
+                        )
+                    })
+                }),
+        )
+        .map_err(err)?;
+    if map.annotate {
+        for r in 0..ny {
+            for c in 0..nx {
+                let v = map.values[r * nx + c];
+                if !v.is_finite() {
+                    continue;
+                }
+                let t = (v - lo) / (hi - lo);
+                let text_color = if t > 0.6 { BLACK } else { WHITE };
+                chart
+                    .draw_series(std::iter::once(Text::new(
+                        format!("{v:.2}"),
+                        (c as f64 - 0.3, r as f64 + 0.1),
+                        ("sans-serif", 13).into_font().color(&text_color),
+                    )))
+                    .map_err(err)?;
+            }
+        }
+    }
+    // Colour bar.
+    let mut bar_chart = ChartBuilder::on(&bar)
+        .margin_top(60)
+        .margin_bottom(70)
+        .margin_right(10)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..1.0, lo..hi)
+        .map_err(err)?;
+    bar_chart
+        .configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .y_desc(map.value_label)
+        .label_style(("sans-serif", 14))
+        .axis_desc_style(("sans-serif", 16))
+        .draw()
+        .map_err(err)?;
+    let steps = 100;
+    bar_chart
+        .draw_series((0..steps).map(|k| {
+            let (a, b) = (
+                lo + (hi - lo) * k as f64 / steps as f64,
+                lo + (hi - lo) * (k + 1) as f64 / steps as f64,
+            );
+            Rectangle::new([(0.0, a), (1.0, b)], color(0.5 * (a + b)).filled())
+        }))
+        .map_err(err)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn significant_digits_trim_floating_point_noise() {
+        assert_eq!(significant(0.010000000001), "0.01");
+        assert_eq!(significant(0.00234567), "0.00235");
+        assert_eq!(significant(1500.0), "1500");
+        assert_eq!(significant(2.5), "2.5");
+        assert_eq!(significant(-0.5), "-0.5");
+        assert_eq!(significant(0.0), "0");
+        assert_eq!(significant(1.5e-6), "1.50e-6");
+    }
 
     #[test]
     fn writes_png_and_svg_and_refuses_other_formats() {
@@ -256,6 +502,34 @@ mod tests {
         assert!(plot(&dir.join("a.jpg"), &fig, &series).is_err());
         let log_fig = Figure { log_y: true, ..fig };
         plot(&dir.join("log.png"), &log_fig, &series).unwrap();
+        let values = [1.0, 2.0, f64::NAN, 4.0, 5.0, 6.0];
+        let map = HeatMap {
+            title: "heat",
+            x_label: "x",
+            y_label: "y",
+            value_label: "v",
+            x_values: &[1.0, 2.0, 4.0],
+            y_values: &[15.0, 30.0],
+            values: &values,
+            annotate: true,
+        };
+        heatmap(&dir.join("heat.png"), &map).unwrap();
+        heatmap(&dir.join("heat.svg"), &map).unwrap();
+        assert!(
+            std::fs::read_to_string(dir.join("heat.svg"))
+                .unwrap()
+                .contains("heat")
+        );
+        assert!(
+            heatmap(
+                &dir.join("bad.png"),
+                &HeatMap {
+                    values: &values[..5],
+                    ..map
+                }
+            )
+            .is_err()
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -4,7 +4,9 @@
 #![warn(missing_docs)]
 
 pub mod ba_scene;
+pub mod preliminary;
 pub mod scale_drift;
 pub mod sensor;
 pub mod trajectory;
+pub mod why_filter;
 pub mod world;

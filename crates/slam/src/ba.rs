@@ -147,34 +147,69 @@ impl<P: Projector<N>, const N: usize> Factor for AnchoredObservation<P, N> {
         residual: &mut [f64],
         jacobians: Option<&mut Jacobians<'_>>,
     ) -> bool {
-        let psi = values.get(self.inverse_depth_point);
-        if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
-            return false;
-        }
-        let t_la = values
-            .get(self.observer_from_world)
-            .compose(&values.get(self.anchor_from_world).inverse());
-        let y = inverse_depth_to_point(psi);
-        let x = t_la.act(&y);
-        let Some((z_hat, dz_dx)) = self.projector.project(&x) else {
+        let Some(lin) = linearize_anchored(
+            &self.projector,
+            values.get(self.observer_from_world),
+            values.get(self.anchor_from_world),
+            values.get(self.inverse_depth_point),
+        ) else {
             return false;
         };
-        residual.copy_from_slice((z_hat - self.measurement).as_slice());
+        residual.copy_from_slice((lin.predicted - self.measurement).as_slice());
         if let Some(j) = jacobians {
             if j.wants(0) {
-                j.set(0, &(dz_dx * d_point_d_pose(&x)));
+                j.set(0, &lin.d_observer);
             }
-            let r_la = t_la.d_act_d_point();
             if j.wants(1) {
-                // x = T_lw·(exp(ε)·T_aw)⁻¹·y = T_la·exp(−ε)·y (thesis eq. B.22).
-                j.set(1, &(-(dz_dx * r_la) * d_point_d_pose(&y)));
+                j.set(1, &lin.d_anchor);
             }
             if j.wants(2) {
-                j.set(2, &(dz_dx * r_la * d_inverse_depth_to_point(psi)));
+                j.set(2, &lin.d_inverse_depth);
             }
         }
         true
     }
+}
+
+/// The prediction `ẑ(T_lw·T_aw⁻¹·Π(ψ))` of an anchored inverse-depth point and its Jacobians
+/// with respect to left perturbations `exp(ε)·T` of observer and anchor and to `ψ` (thesis
+/// eq. 4.17, B.19–B.22; the blocks of thesis Alg. 4).
+#[derive(Clone, Copy, Debug)]
+pub struct AnchoredLinearization<const N: usize> {
+    /// `ẑ`.
+    pub predicted: SVector<f64, N>,
+    /// `∂ẑ/∂ε` of the observer `exp(ε)·T_lw`.
+    pub d_observer: SMatrix<f64, N, 6>,
+    /// `∂ẑ/∂ε` of the anchor `exp(ε)·T_aw`.
+    pub d_anchor: SMatrix<f64, N, 6>,
+    /// `∂ẑ/∂ψ`.
+    pub d_inverse_depth: SMatrix<f64, N, 3>,
+}
+
+/// Linearises an anchored inverse-depth observation (the maths of [`AnchoredObservation`]),
+/// or `None` where it is undefined (inverse depth not positive, point behind the observer).
+#[inline]
+pub fn linearize_anchored<P: Projector<N>, const N: usize>(
+    projector: &P,
+    observer_from_world: &Se3,
+    anchor_from_world: &Se3,
+    psi: &Vector3<f64>,
+) -> Option<AnchoredLinearization<N>> {
+    if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
+        return None;
+    }
+    let t_la = observer_from_world.compose(&anchor_from_world.inverse());
+    let y = inverse_depth_to_point(psi);
+    let x = t_la.act(&y);
+    let (predicted, dz_dx) = projector.project(&x)?;
+    let r_la = t_la.d_act_d_point();
+    Some(AnchoredLinearization {
+        predicted,
+        d_observer: dz_dx * d_point_d_pose(&x),
+        // x = T_lw·(exp(ε)·T_aw)⁻¹·y = T_la·exp(−ε)·y (thesis eq. B.22).
+        d_anchor: -(dz_dx * r_la) * d_point_d_pose(&y),
+        d_inverse_depth: dz_dx * r_la * d_inverse_depth_to_point(psi),
+    })
 }
 
 /// An anchored inverse-depth point observed in its own anchor frame: `r = ẑ(Π(ψ)) − z`,
@@ -540,11 +575,11 @@ mod tests {
 /// Which variables a bundle adjustment optimises (thesis eq. 4.14–4.16).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BaMode {
-    /// Poses and points (eq. 4.16).
+    /// Poses and points (eq. 4.14).
     Full,
-    /// Poses only, points held fixed (eq. 4.14): tracking against a known map.
+    /// Poses only, points held fixed (eq. 4.15): tracking against a known map.
     MotionOnly,
-    /// Points only, poses held fixed (eq. 4.15): refining structure for known motion.
+    /// Points only, poses held fixed (eq. 4.16): refining structure for known motion.
     StructureOnly,
 }
 

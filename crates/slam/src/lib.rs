@@ -5,7 +5,14 @@
 #![warn(missing_docs)]
 
 pub mod ba;
+pub mod ba_slam;
+pub mod bootstrap;
+pub mod clock;
+pub mod dense;
 pub mod exploration;
 pub mod feature_init;
+pub mod features;
+pub mod filter;
+pub mod filter_slam;
 pub mod loop_closure;
 pub mod pose_graph;

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 pub mod cbh_jacobians;
 pub mod scale_drift;
+pub mod why_filter;
 
 /// The experiments of the thesis.
 #[derive(Subcommand, Debug)]
@@ -14,6 +15,31 @@ pub enum ExperimentCommand {
     CbhJacobians(CbhArgs),
     /// Thesis §5.4: scale drift in monocular SLAM, SE(3) vs Sim(3) loop closure (Fig. 5.4–5.6).
     ScaleDrift(scale_drift::ScaleDriftArgs),
+    /// Thesis ch. 4 (Figures 4.3, 4.5–4.13): filtering versus keyframe bundle adjustment.
+    WhyFilter(WhyFilterArgs),
+}
+
+/// Options of `dwslam experiment why-filter`.
+#[derive(Args, Debug)]
+pub struct WhyFilterArgs {
+    /// `preliminary` (§4.3), a setting of §4.6.1 (`i`, `ii`, `iii`, `iv`), or `all`.
+    #[arg(long, default_value = "all")]
+    setting: String,
+    /// Monte Carlo trials per (setting, sensor, M, N) cell (the thesis uses 500).
+    #[arg(long, default_value_t = 12)]
+    trials: usize,
+    /// `stereo`, `mono` or `both`.
+    #[arg(long, default_value = "both")]
+    sensor: String,
+    /// Output directory (CSV, PNG, summary.json).
+    #[arg(long, default_value = "why-filter")]
+    out: PathBuf,
+    /// Master seed.
+    #[arg(long, default_value_t = 2012)]
+    seed: u64,
+    /// Worker threads, each running whole trials single-threaded (default: all cores).
+    #[arg(long)]
+    workers: Option<usize>,
 }
 
 /// Options of `dwslam experiment cbh-jacobians`.
@@ -35,7 +61,97 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::CbhJacobians(args) => run_cbh(args),
         ExperimentCommand::ScaleDrift(args) => scale_drift::run(args),
+        ExperimentCommand::WhyFilter(args) => run_why_filter(args),
     }
+}
+
+fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
+    use sim::why_filter::{SensorKind, Setting};
+    let (preliminary, settings): (bool, Vec<Setting>) = match args.setting.as_str() {
+        "all" => (true, Setting::ALL.to_vec()),
+        "preliminary" => (true, Vec::new()),
+        s => (
+            false,
+            vec![Setting::parse(s).with_context(|| {
+                format!("--setting {s}: expected preliminary, i, ii, iii, iv or all")
+            })?],
+        ),
+    };
+    let sensors = match args.sensor.as_str() {
+        "both" => vec![SensorKind::Stereo, SensorKind::Mono],
+        "stereo" => vec![SensorKind::Stereo],
+        "mono" => vec![SensorKind::Mono],
+        s => anyhow::bail!("--sensor {s}: expected stereo, mono or both"),
+    };
+    anyhow::ensure!(
+        args.trials >= 2,
+        "--trials must be at least 2 (sample covariances)"
+    );
+    let workers = args
+        .workers
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .max(1);
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let started = std::time::Instant::now();
+    let mut summary = serde_json::Map::new();
+    summary.insert(
+        "config".into(),
+        serde_json::json!({
+            "setting": args.setting, "sensor": args.sensor, "trials": args.trials,
+            "seed": args.seed, "workers": workers,
+            "timing": "CPU time of the thread running each trial (one-thread rayon pool per worker; CLOCK_THREAD_CPUTIME_ID), independent of the machine load",
+        }),
+    );
+    if preliminary {
+        let t = std::time::Instant::now();
+        let p = why_filter::run_preliminary();
+        let s = why_filter::write_preliminary(&p, &args.out)?;
+        println!(
+            "preliminary (§4.3): doubling N beats doubling M at {}/{} grid points (translation and rotation); {:.1} s",
+            s["points_beat_frames"],
+            s["grid_points_compared"],
+            t.elapsed().as_secs_f64()
+        );
+        summary.insert("preliminary".into(), s);
+    }
+    if !settings.is_empty() {
+        let total = sim::why_filter::trial_specs(&settings, &sensors, args.trials, args.seed).len();
+        let bar = indicatif::ProgressBar::new(total as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:40}] {pos}/{len} trials, ETA {eta}",
+            )
+            .expect("valid template")
+            .progress_chars("=> "),
+        );
+        let results = why_filter::run_settings(
+            &settings,
+            &sensors,
+            args.trials,
+            args.seed,
+            workers,
+            &|| bar.inc(1),
+        );
+        bar.finish();
+        let (groups, table, _) = why_filter::write_settings(&results, &args.out)?;
+        println!("{table}");
+        std::fs::write(args.out.join("table.txt"), &table)
+            .with_context(|| format!("writing {}", args.out.join("table.txt").display()))?;
+        summary.insert("settings".into(), groups);
+    }
+    summary.insert(
+        "elapsed_seconds".into(),
+        serde_json::json!(started.elapsed().as_secs_f64()),
+    );
+    let path = args.out.join("summary.json");
+    std::fs::write(
+        &path,
+        serde_json::to_string_pretty(&serde_json::Value::Object(summary))?,
+    )
+    .with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {} (and CSV/PNG files beside it)", path.display());
+    Ok(())
 }
 
 fn run_cbh(args: CbhArgs) -> Result<()> {
