@@ -5,4 +5,6 @@
 #![warn(missing_docs)]
 
 pub mod ba;
+pub mod dwo;
+pub mod graph;
 pub mod pose_graph;
