@@ -15,8 +15,8 @@ def load(p, solver, threads, who):
     return json.loads(f.read_text()) if f.exists() else None
 
 
-print("| problem | solver (dwslam / Ceres) | threads | dwslam final ½Σ‖r‖² | Ceres final ½Σ‖r‖² | rel. diff | dwslam s/iter | Ceres s/iter | ratio |")
-print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+print("| problem | solver (dwslam / Ceres) | threads | dwslam final ½Σ‖r‖² | Ceres final ½Σ‖r‖² | rel. diff | dwslam s/iter | Ceres s/iter | ratio | CPU-time ratio |")
+print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
 growth = {}
 for p in problems:
     for solver, ceres_name in [("schur-cholesky", "SPARSE_SCHUR"), ("schur-pcg", "ITERATIVE_SCHUR+SCHUR_JACOBI")]:
@@ -26,8 +26,10 @@ for p in problems:
                 continue
             rel = (d["final_cost"] - c["final_cost"]) / c["final_cost"]
             ratio = d["time_per_iteration_s"] / c["time_per_iteration_s"]
+            dc, cc = d.get("cpu_time_per_iteration_s"), c.get("cpu_time_per_iteration_s")
+            cpu = f"{dc / cc:.2f}" if dc and cc else "n/a"
             print(f"| {p} | {solver} / {ceres_name} | {threads} | {d['final_cost']:.6g} | {c['final_cost']:.6g} | {rel:+.2e} | "
-                  f"{d['time_per_iteration_s']:.4f} | {c['time_per_iteration_s']:.4f} | {ratio:.2f} |")
+                  f"{d['time_per_iteration_s']:.4f} | {c['time_per_iteration_s']:.4f} | {ratio:.2f} | {cpu} |")
             if p.startswith("synthetic-") and solver == "schur-cholesky" and threads == 1:
                 growth[int(p.split("-")[1])] = (d["time_per_iteration_s"], c["time_per_iteration_s"], d["rms_px"])
 

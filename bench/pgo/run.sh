@@ -27,7 +27,8 @@ for so in bench/pgo/.venv-gtsam/lib/python3*/site-packages/gtsam.libs/*.so* \
   fi
 done
 
-flock /work/.release-build.lock cargo build -q --release -p data --examples
+# $DWSLAM_BUILD_LOCK: a lock file that serialises release builds on a shared machine (optional).
+if [ -n "${DWSLAM_BUILD_LOCK:-}" ]; then flock "$DWSLAM_BUILD_LOCK" cargo build -q --release -p data -p dwslam --examples --bins; else cargo build -q --release -p data -p dwslam --examples --bins; fi
 HAVE_DWSLAM=0
 if [ -x target/release/dwslam ] && target/release/dwslam pgo --help >/dev/null 2>&1; then
   HAVE_DWSLAM=1

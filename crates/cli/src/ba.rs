@@ -87,6 +87,20 @@ fn parse_synthetic(spec: &str) -> Result<(usize, usize)> {
     Ok((cameras, points))
 }
 
+/// CPU time (user + system) consumed by this process so far, from `/proc/self/stat` (Linux);
+/// `None` elsewhere. Unlike wall time it is barely affected by other processes on a shared
+/// machine, so single-threaded benchmark ratios use it.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which is parenthesised and may contain spaces).
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the full line: 12 and 13 after the name.
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    // Clock ticks per second: 100 on every Linux configuration in use (USER_HZ).
+    Some(ticks / 100.0)
+}
+
 /// Entry point of `dwslam ba`.
 pub fn run(args: BaArgs) -> Result<()> {
     let start = Instant::now();
@@ -193,6 +207,7 @@ pub fn run(args: BaArgs) -> Result<()> {
         );
     }
     let quiet = args.quiet;
+    let cpu_before = process_cpu_seconds();
     let summary = ba.problem.optimize_with(&options, |it| {
         if !quiet {
             println!(
@@ -210,6 +225,10 @@ pub fn run(args: BaArgs) -> Result<()> {
             );
         }
     })?;
+    let cpu_seconds = match (cpu_before, process_cpu_seconds()) {
+        (Some(a), Some(b)) => Some(b - a),
+        _ => None,
+    };
     let n_obs = observations.len() - ba.rejected.len();
     // With no kernel, cost = ½Σ‖r‖², so RMS per observation = √(2·cost/n).
     let rms = |chi2: f64| (chi2 / n_obs.max(1) as f64).sqrt();
@@ -265,6 +284,7 @@ pub fn run(args: BaArgs) -> Result<()> {
             "accepted_steps": summary.accepted_steps(),
             "termination": format!("{:?}", summary.termination),
             "time_per_iteration_s": per_iteration,
+            "cpu_time_per_iteration_s": cpu_seconds.map(|c| c / iterations.max(1) as f64),
             "setup_time_s": summary.time_structure.as_secs_f64(),
             "solve_time_s": summary.time_total.as_secs_f64(),
             "total_time_s": start.elapsed().as_secs_f64(),

@@ -220,6 +220,59 @@ pub fn d_log_from_parts<G: LieGroup<DOF>, const DOF: usize>(
     }
 }
 
+/// `a * b` for composition and `g * p` for the action on a point, by value and by reference,
+/// for a group implementing [`LieGroup`].
+#[macro_export]
+#[doc(hidden)]
+macro_rules! impl_group_operators {
+    ($g:ty, $dof:literal, $point:ty) => {
+        impl ::std::ops::Mul for $g {
+            type Output = $g;
+            #[inline]
+            fn mul(self, rhs: $g) -> $g {
+                $crate::LieGroup::<$dof>::compose(&self, &rhs)
+            }
+        }
+        impl ::std::ops::Mul<&$g> for &$g {
+            type Output = $g;
+            #[inline]
+            fn mul(self, rhs: &$g) -> $g {
+                $crate::LieGroup::<$dof>::compose(self, rhs)
+            }
+        }
+        impl ::std::ops::Mul<$point> for $g {
+            type Output = $point;
+            #[inline]
+            fn mul(self, rhs: $point) -> $point {
+                $crate::LieGroup::<$dof>::act(&self, &rhs)
+            }
+        }
+        impl ::std::ops::Mul<&$point> for &$g {
+            type Output = $point;
+            #[inline]
+            fn mul(self, rhs: &$point) -> $point {
+                $crate::LieGroup::<$dof>::act(self, rhs)
+            }
+        }
+    };
+}
+
+/// The largest deviation of a homogeneous matrix's last row from `(0, …, 0, 1)`; an error if
+/// it exceeds `tolerance`.
+pub(crate) fn check_last_row<const N: usize>(
+    matrix: &nalgebra::SMatrix<f64, N, N>,
+    tolerance: f64,
+) -> Result<(), LieError> {
+    let last = N - 1;
+    let deviation = (0..N)
+        .map(|c| (matrix[(last, c)] - if c == last { 1.0 } else { 0.0 }).abs())
+        .fold(0.0, f64::max);
+    if deviation > tolerance {
+        return Err(LieError::NotHomogeneous { deviation });
+    }
+    Ok(())
+}
+
 /// The skew-symmetric cross-product matrix `[ω]×` with `[ω]×·b = ω × b` (thesis eq. 2.60).
 #[inline]
 pub fn skew(w: &nalgebra::Vector3<f64>) -> nalgebra::Matrix3<f64> {

@@ -4,7 +4,6 @@ use crate::scalar::HalfAngle;
 use crate::so2::perp;
 use crate::{LieError, LieGroup, So2};
 use nalgebra::{Matrix2, Matrix3, SMatrix, Vector2, Vector3};
-use std::ops::Mul;
 
 /// A rigid motion in the plane, `x ↦ R(θ)·x + t`.
 ///
@@ -217,13 +216,7 @@ impl LieGroup<3> for Se2 {
                 what: "SE(2) matrix",
             });
         }
-        let deviation = matrix[(2, 0)]
-            .abs()
-            .max(matrix[(2, 1)].abs())
-            .max((matrix[(2, 2)] - 1.0).abs());
-        if deviation > tolerance {
-            return Err(LieError::NotHomogeneous { deviation });
-        }
+        crate::check_last_row(matrix, tolerance)?;
         let r = matrix.fixed_view::<2, 2>(0, 0).into_owned();
         Ok(Se2::new(
             So2::from_matrix_with_tolerance(&r, tolerance)?,
@@ -278,16 +271,4 @@ impl LieGroup<3> for Se2 {
     }
 }
 
-impl Mul for Se2 {
-    type Output = Se2;
-    fn mul(self, rhs: Se2) -> Se2 {
-        self.compose(&rhs)
-    }
-}
-
-impl Mul<Vector2<f64>> for Se2 {
-    type Output = Vector2<f64>;
-    fn mul(self, rhs: Vector2<f64>) -> Vector2<f64> {
-        self.act(&rhs)
-    }
-}
+crate::impl_group_operators!(Se2, 3, Vector2<f64>);

@@ -4,7 +4,6 @@ use crate::scalar::HalfAngle;
 use crate::so3::validate_rotation;
 use crate::{LieError, LieGroup, So3, skew, unskew};
 use nalgebra::{Isometry3, Matrix3, Matrix4, SMatrix, Translation3, Vector3, Vector6};
-use std::ops::Mul;
 
 /// A rigid-body transformation `x ↦ R·x + t` (thesis eq. 2.93–2.94).
 ///
@@ -283,14 +282,7 @@ impl LieGroup<6> for Se3 {
                 what: "SE(3) matrix",
             });
         }
-        let deviation = matrix[(3, 0)]
-            .abs()
-            .max(matrix[(3, 1)].abs())
-            .max(matrix[(3, 2)].abs())
-            .max((matrix[(3, 3)] - 1.0).abs());
-        if deviation > tolerance {
-            return Err(LieError::NotHomogeneous { deviation });
-        }
+        crate::check_last_row(matrix, tolerance)?;
         let r = matrix.fixed_view::<3, 3>(0, 0).into_owned();
         validate_rotation(&r, tolerance)?;
         Ok(Se3::new(
@@ -335,34 +327,4 @@ impl LieGroup<6> for Se3 {
     }
 }
 
-impl Mul for Se3 {
-    type Output = Se3;
-    #[inline]
-    fn mul(self, rhs: Se3) -> Se3 {
-        self.compose(&rhs)
-    }
-}
-
-impl Mul<&Se3> for &Se3 {
-    type Output = Se3;
-    #[inline]
-    fn mul(self, rhs: &Se3) -> Se3 {
-        self.compose(rhs)
-    }
-}
-
-impl Mul<Vector3<f64>> for Se3 {
-    type Output = Vector3<f64>;
-    #[inline]
-    fn mul(self, rhs: Vector3<f64>) -> Vector3<f64> {
-        self.act(&rhs)
-    }
-}
-
-impl Mul<&Vector3<f64>> for &Se3 {
-    type Output = Vector3<f64>;
-    #[inline]
-    fn mul(self, rhs: &Vector3<f64>) -> Vector3<f64> {
-        self.act(rhs)
-    }
-}
+crate::impl_group_operators!(Se3, 6, Vector3<f64>);

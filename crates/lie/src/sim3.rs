@@ -5,7 +5,6 @@ use crate::scalar::{gauss_legendre_01, inverse_w_coefficients, sim3_w_coefficien
 use crate::so3::validate_rotation;
 use crate::{LieError, LieGroup, Se3, So3, skew, unskew};
 use nalgebra::{Matrix3, Matrix4, SMatrix, SVector, Vector3};
-use std::ops::Mul;
 use std::sync::OnceLock;
 
 /// A tangent vector of Sim(3): `(v, ω, σ)` (thesis eq. 5.5–5.6).
@@ -269,14 +268,7 @@ impl LieGroup<7> for Sim3 {
                 what: "Sim(3) matrix",
             });
         }
-        let deviation = matrix[(3, 0)]
-            .abs()
-            .max(matrix[(3, 1)].abs())
-            .max(matrix[(3, 2)].abs())
-            .max((matrix[(3, 3)] - 1.0).abs());
-        if deviation > tolerance {
-            return Err(LieError::NotHomogeneous { deviation });
-        }
+        crate::check_last_row(matrix, tolerance)?;
         let sr = matrix.fixed_view::<3, 3>(0, 0).into_owned();
         let determinant = sr.determinant();
         if determinant <= 0.0 {
@@ -322,34 +314,4 @@ impl LieGroup<7> for Sim3 {
     }
 }
 
-impl Mul for Sim3 {
-    type Output = Sim3;
-    #[inline]
-    fn mul(self, rhs: Sim3) -> Sim3 {
-        self.compose(&rhs)
-    }
-}
-
-impl Mul<&Sim3> for &Sim3 {
-    type Output = Sim3;
-    #[inline]
-    fn mul(self, rhs: &Sim3) -> Sim3 {
-        self.compose(rhs)
-    }
-}
-
-impl Mul<Vector3<f64>> for Sim3 {
-    type Output = Vector3<f64>;
-    #[inline]
-    fn mul(self, rhs: Vector3<f64>) -> Vector3<f64> {
-        self.act(&rhs)
-    }
-}
-
-impl Mul<&Vector3<f64>> for &Sim3 {
-    type Output = Vector3<f64>;
-    #[inline]
-    fn mul(self, rhs: &Vector3<f64>) -> Vector3<f64> {
-        self.act(rhs)
-    }
-}
+crate::impl_group_operators!(Sim3, 7, Vector3<f64>);

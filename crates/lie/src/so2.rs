@@ -2,7 +2,6 @@
 
 use crate::{LieError, LieGroup};
 use nalgebra::{Complex, Matrix1, Matrix2, SMatrix, UnitComplex, Vector1, Vector2};
-use std::ops::Mul;
 
 /// A rotation in the plane by an angle `θ`, stored as a unit complex number `cos θ + i·sin θ`.
 ///
@@ -188,16 +187,4 @@ impl LieGroup<1> for So2 {
     }
 }
 
-impl Mul for So2 {
-    type Output = So2;
-    fn mul(self, rhs: So2) -> So2 {
-        self.compose(&rhs)
-    }
-}
-
-impl Mul<Vector2<f64>> for So2 {
-    type Output = Vector2<f64>;
-    fn mul(self, rhs: Vector2<f64>) -> Vector2<f64> {
-        self.act(&rhs)
-    }
-}
+crate::impl_group_operators!(So2, 1, Vector2<f64>);

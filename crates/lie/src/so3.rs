@@ -3,7 +3,6 @@
 use crate::scalar::HalfAngle;
 use crate::{LieError, LieGroup, skew, unskew};
 use nalgebra::{Matrix3, Quaternion, Rotation3, SMatrix, SVector, UnitQuaternion, Vector3};
-use std::ops::Mul;
 
 /// A rotation in 3D, stored as a unit quaternion.
 ///
@@ -280,34 +279,4 @@ pub(crate) fn validate_rotation(matrix: &Matrix3<f64>, tolerance: f64) -> Result
     Ok(())
 }
 
-impl Mul for So3 {
-    type Output = So3;
-    #[inline]
-    fn mul(self, rhs: So3) -> So3 {
-        self.compose(&rhs)
-    }
-}
-
-impl Mul<&So3> for &So3 {
-    type Output = So3;
-    #[inline]
-    fn mul(self, rhs: &So3) -> So3 {
-        self.compose(rhs)
-    }
-}
-
-impl Mul<Vector3<f64>> for So3 {
-    type Output = Vector3<f64>;
-    #[inline]
-    fn mul(self, rhs: Vector3<f64>) -> Vector3<f64> {
-        self.act(&rhs)
-    }
-}
-
-impl Mul<&Vector3<f64>> for &So3 {
-    type Output = Vector3<f64>;
-    #[inline]
-    fn mul(self, rhs: &Vector3<f64>) -> Vector3<f64> {
-        self.act(rhs)
-    }
-}
+crate::impl_group_operators!(So3, 3, Vector3<f64>);

@@ -86,6 +86,18 @@ impl BlockSymmetric {
             .map(|p| range.start + 1 + p)
     }
 
+    /// The contiguous range of `values` holding block column `j` (its blocks are stored one
+    /// after another), so that parallel tasks can own whole columns.
+    pub(crate) fn column_values(&self, j: usize) -> std::ops::Range<usize> {
+        let start = self.value_offsets[self.col_ptr[j]];
+        let end = if j + 1 < self.num_blocks() {
+            self.value_offsets[self.col_ptr[j + 1]]
+        } else {
+            self.values.len()
+        };
+        start..end
+    }
+
     /// The diagonal block of column `j` (column-major, `d×d`).
     pub(crate) fn diagonal_block(&self, j: usize) -> &[f64] {
         let o = self.value_offsets[self.col_ptr[j]];
@@ -101,24 +113,10 @@ impl BlockSymmetric {
                 let i = self.rows[s] as usize;
                 let (oi, di) = (self.offsets[i], self.dims[i]);
                 let b = &self.values[self.value_offsets[s]..self.value_offsets[s] + di * dj];
-                // y_i += B·x_j
-                for c in 0..dj {
-                    let xc = x[oj + c];
-                    let col = &b[c * di..(c + 1) * di];
-                    for r in 0..di {
-                        y[oi + r] += col[r] * xc;
-                    }
-                }
+                // y_i += B·x_j, and for off-diagonal blocks y_j += Bᵀ·x_i.
+                crate::kernels::add_a_x(&mut y[oi..oi + di], b, &x[oj..oj + dj], di, dj, 1.0);
                 if i != j {
-                    // y_j += Bᵀ·x_i
-                    for c in 0..dj {
-                        let col = &b[c * di..(c + 1) * di];
-                        let mut acc = 0.0;
-                        for r in 0..di {
-                            acc += col[r] * x[oi + r];
-                        }
-                        y[oj + c] += acc;
-                    }
+                    crate::kernels::add_at_x(&mut y[oj..oj + dj], b, &x[oi..oi + di], di, dj, 1.0);
                 }
             }
         }

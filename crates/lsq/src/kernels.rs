@@ -54,6 +54,29 @@ fn at_b_dynamic(out: &mut [f64], a: &[f64], b: &[f64], r: usize, di: usize, dj: 
     }
 }
 
+/// Fully specialised `out (DI×DJ) += sign·Aᵀ·B`: every loop bound is a constant, so the
+/// compiler unrolls the loops and drops the bounds checks.
+#[inline(always)]
+fn at_b_const<const R: usize, const DI: usize, const DJ: usize>(
+    out: &mut [f64],
+    a: &[f64],
+    b: &[f64],
+    sign: f64,
+) {
+    let a = &a[..R * DI];
+    let b = &b[..R * DJ];
+    let out = &mut out[..DI * DJ];
+    for cc in 0..DJ {
+        for rr in 0..DI {
+            let mut acc = 0.0;
+            for t in 0..R {
+                acc += a[rr * R + t] * b[cc * R + t];
+            }
+            out[cc * DI + rr] += sign * acc;
+        }
+    }
+}
+
 /// `out (di×dj) += sign·Aᵀ·B` for `A` (r×di) and `B` (r×dj).
 #[inline(always)]
 pub(crate) fn add_at_b(
@@ -65,12 +88,51 @@ pub(crate) fn add_at_b(
     dj: usize,
     sign: f64,
 ) {
-    dispatch!(
-        r,
-        at_b_fixed,
-        (out, a, b, di, dj, sign),
-        at_b_dynamic(out, a, b, r, di, dj, sign)
-    )
+    // The block sizes of bundle adjustment (residuals of 2 or 3, points of 3, poses of 6 or 7,
+    // BAL cameras of 9) and pose graphs get fully specialised kernels; others the generic ones.
+    match (r, di, dj) {
+        (1, 1, 1) => at_b_const::<1, 1, 1>(out, a, b, sign),
+        (2, 3, 3) => at_b_const::<2, 3, 3>(out, a, b, sign),
+        (2, 3, 6) => at_b_const::<2, 3, 6>(out, a, b, sign),
+        (2, 3, 7) => at_b_const::<2, 3, 7>(out, a, b, sign),
+        (2, 3, 9) => at_b_const::<2, 3, 9>(out, a, b, sign),
+        (2, 6, 3) => at_b_const::<2, 6, 3>(out, a, b, sign),
+        (2, 6, 6) => at_b_const::<2, 6, 6>(out, a, b, sign),
+        (2, 6, 7) => at_b_const::<2, 6, 7>(out, a, b, sign),
+        (2, 6, 9) => at_b_const::<2, 6, 9>(out, a, b, sign),
+        (2, 7, 3) => at_b_const::<2, 7, 3>(out, a, b, sign),
+        (2, 7, 6) => at_b_const::<2, 7, 6>(out, a, b, sign),
+        (2, 7, 7) => at_b_const::<2, 7, 7>(out, a, b, sign),
+        (2, 7, 9) => at_b_const::<2, 7, 9>(out, a, b, sign),
+        (2, 9, 3) => at_b_const::<2, 9, 3>(out, a, b, sign),
+        (2, 9, 6) => at_b_const::<2, 9, 6>(out, a, b, sign),
+        (2, 9, 7) => at_b_const::<2, 9, 7>(out, a, b, sign),
+        (2, 9, 9) => at_b_const::<2, 9, 9>(out, a, b, sign),
+        (3, 3, 3) => at_b_const::<3, 3, 3>(out, a, b, sign),
+        (3, 3, 6) => at_b_const::<3, 3, 6>(out, a, b, sign),
+        (3, 3, 7) => at_b_const::<3, 3, 7>(out, a, b, sign),
+        (3, 3, 9) => at_b_const::<3, 3, 9>(out, a, b, sign),
+        (3, 6, 3) => at_b_const::<3, 6, 3>(out, a, b, sign),
+        (3, 6, 6) => at_b_const::<3, 6, 6>(out, a, b, sign),
+        (3, 6, 7) => at_b_const::<3, 6, 7>(out, a, b, sign),
+        (3, 6, 9) => at_b_const::<3, 6, 9>(out, a, b, sign),
+        (3, 7, 3) => at_b_const::<3, 7, 3>(out, a, b, sign),
+        (3, 7, 6) => at_b_const::<3, 7, 6>(out, a, b, sign),
+        (3, 7, 7) => at_b_const::<3, 7, 7>(out, a, b, sign),
+        (3, 7, 9) => at_b_const::<3, 7, 9>(out, a, b, sign),
+        (3, 9, 3) => at_b_const::<3, 9, 3>(out, a, b, sign),
+        (3, 9, 6) => at_b_const::<3, 9, 6>(out, a, b, sign),
+        (3, 9, 7) => at_b_const::<3, 9, 7>(out, a, b, sign),
+        (3, 9, 9) => at_b_const::<3, 9, 9>(out, a, b, sign),
+        (6, 6, 6) => at_b_const::<6, 6, 6>(out, a, b, sign),
+        (7, 7, 7) => at_b_const::<7, 7, 7>(out, a, b, sign),
+        _ => dispatch!(
+            r,
+            at_b_fixed,
+            (out, a, b, di, dj, sign),
+            at_b_dynamic(out, a, b, r, di, dj, sign)
+        ),
+    }
 }
 
 #[inline(always)]
@@ -182,7 +244,16 @@ mod tests {
     #[test]
     fn kernels_match_nalgebra_for_fixed_and_dynamic_sizes() {
         for r in [1, 2, 3, 5, 6, 9, 11] {
-            for (di, dj) in [(1, 1), (3, 9), (9, 3), (6, 6)] {
+            for (di, dj) in [
+                (1, 1),
+                (3, 9),
+                (9, 3),
+                (6, 6),
+                (9, 9),
+                (3, 3),
+                (7, 7),
+                (6, 3),
+            ] {
                 let a = DMatrix::<f64>::from_fn(r, di, |i, j| ((i * 3 + j) as f64 * 0.7).sin());
                 let b = DMatrix::<f64>::from_fn(r, dj, |i, j| ((i + j * 5) as f64 * 0.3).cos());
                 let mut out = vec![1.0; di * dj];

@@ -586,19 +586,15 @@ impl Problem {
         let res = &ws.residuals;
         let (h_ptr, h_contrib) = (&s.h_contrib_ptr, &s.h_contrib);
         let val_ptr = DisjointMut::new(&mut h.values);
+        let h: &BlockSymmetric = h;
         let (col_ptr, rows, value_offsets, dims) = (&h.col_ptr, &h.rows, &h.value_offsets, &h.dims);
-        let total = h.values.len();
         let nb = dims.len();
         (0..nb).into_par_iter().with_min_len(16).for_each(|j| {
             let dj = dims[j];
-            let start = value_offsets[col_ptr[j]];
-            let end = if j + 1 < nb {
-                value_offsets[col_ptr[j + 1]]
-            } else {
-                total
-            };
+            let range = h.column_values(j);
+            let start = range.start;
             // SAFETY: block column j owns the contiguous value range of its blocks.
-            let col_vals = unsafe { val_ptr.slice(start, end - start) };
+            let col_vals = unsafe { val_ptr.slice(start, range.len()) };
             for s_idx in col_ptr[j]..col_ptr[j + 1] {
                 let di = dims[rows[s_idx] as usize];
                 let o = value_offsets[s_idx] - start;

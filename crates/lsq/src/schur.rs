@@ -284,23 +284,18 @@ impl LinearSolve for SchurCholesky {
         }
         // S = H_cc + D_c − Σ_p H_pc1ᵀ·E_pc2, parallel over block columns of S.
         {
-            let s = &mut self.s;
-            let total = s.values.len();
-            let s_ptr = DisjointMut::new(&mut s.values);
+            let s_ptr = DisjointMut::new(&mut self.s.values);
+            let s: &BlockSymmetric = &self.s;
             let (col_ptr, rows, vo, dims, offsets) =
                 (&s.col_ptr, &s.rows, &s.value_offsets, &s.dims, &s.offsets);
             let (s_from_h, cp, contrib, e) =
                 (&self.s_from_h, &self.contrib_ptr, &self.contrib, &self.e);
             (0..nr).into_par_iter().with_min_len(4).for_each(|j| {
                 let dj = dims[j];
-                let start = vo[col_ptr[j]];
-                let end = if j + 1 < nr {
-                    vo[col_ptr[j + 1]]
-                } else {
-                    total
-                };
+                let range = s.column_values(j);
+                let start = range.start;
                 // SAFETY: block column j of S owns its contiguous value range.
-                let col_vals = unsafe { s_ptr.slice(start, end - start) };
+                let col_vals = unsafe { s_ptr.slice(start, range.len()) };
                 for k in col_ptr[j]..col_ptr[j + 1] {
                     let i = rows[k] as usize;
                     let di = dims[i];

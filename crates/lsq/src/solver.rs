@@ -278,6 +278,7 @@ impl Problem {
             }
         };
         let time_structure = start.elapsed();
+        let exact_solve = !matches!(kind, LinearSolver::Pcg | LinearSolver::SchurPcg);
 
         let t = Instant::now();
         let mut current = self.evaluate(true);
@@ -396,11 +397,18 @@ impl Problem {
                 summary.termination = Termination::ParameterTolerance;
                 break;
             }
-            // Predicted decrease of the quadratic model: −(gᵀδ + ½δᵀHδ).
-            h.multiply(&delta, &mut h_delta);
+            // Predicted decrease of the quadratic model: −(gᵀδ + ½δᵀHδ). A direct solve makes
+            // (H + D)δ = −g hold to rounding, so δᵀHδ = −gᵀδ − δᵀDδ and no product is needed;
+            // an inexact (iterative) step needs the product itself.
             let g = &self.workspace.as_ref().expect("built").gradient;
             let g_delta: f64 = g.iter().zip(&delta).map(|(a, b)| a * b).sum();
-            let d_h_d: f64 = delta.iter().zip(&h_delta).map(|(a, b)| a * b).sum();
+            let d_h_d = if exact_solve {
+                let d_d_d: f64 = delta.iter().zip(&diag_add).map(|(x, d)| d * x * x).sum();
+                -g_delta - d_d_d
+            } else {
+                h.multiply(&delta, &mut h_delta);
+                delta.iter().zip(&h_delta).map(|(a, b)| a * b).sum()
+            };
             let predicted = -(g_delta + 0.5 * d_h_d);
 
             // Candidate: linearise there directly (its Jacobians are needed if it is taken;

@@ -6,5 +6,6 @@
 
 pub mod ba;
 pub mod dwo;
+pub mod feature_init;
 pub mod graph;
 pub mod pose_graph;
