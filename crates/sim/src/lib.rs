@@ -4,6 +4,7 @@
 #![warn(missing_docs)]
 
 pub mod ba_scene;
+pub mod dwo;
 pub mod sensor;
 pub mod trajectory;
 pub mod world;

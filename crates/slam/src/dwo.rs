@@ -805,3 +805,193 @@ mod tests {
         assert!((t.0.scale() - 1.7).abs() < 1e-12);
     }
 }
+
+#[cfg(test)]
+mod graph_tests {
+    use super::*;
+    use crate::graph::SharedGraph;
+    use geom::{PinholeCamera, StereoCamera};
+    use lie::Se3;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+    /// `n` stereo keyframes moving sideways in front of a wall of points, perturbed; every
+    /// point anchored in the first keyframe that sees it; edges by covisibility.
+    fn wall_graph(seed: u64, n: usize) -> (SlamGraph<3>, StereoCamera, Vec<Se3>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let cam = StereoCamera::new(PinholeCamera::new(300.0, 300.0, 320.0, 240.0), 0.1);
+        let truth: Vec<Se3> = (0..n)
+            .map(|k| Se3::from_translation(Vector3::new(-0.2 * k as f64, 0.0, 0.0)))
+            .collect();
+        let points: Vec<Vector3<f64>> = (0..400)
+            .map(|_| {
+                Vector3::new(
+                    rng.random_range(-2.0..0.5 * n as f64 + 2.0),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(2.5..3.5),
+                )
+            })
+            .collect();
+        let mut g = SlamGraph::<3>::new();
+        let mut ids: Vec<Option<PointId>> = vec![None; points.len()];
+        for t in truth.iter() {
+            let noise = SVector::<f64, 7>::from_fn(|i, _| {
+                if i < 6 {
+                    rng.random_range(-0.01..0.01)
+                } else {
+                    0.0
+                }
+            });
+            let kf = g.add_keyframe(Sim3::exp(&noise).compose(&Sim3::from_se3(t)));
+            for (w, p) in points.iter().enumerate() {
+                let x = t.act(p);
+                let Some((z, _)) = Projector::<3>::project(&cam, &x) else {
+                    continue;
+                };
+                if !(0.0..640.0).contains(&z.x)
+                    || !(0.0..480.0).contains(&z.y)
+                    || !(0.0..640.0).contains(&z.z)
+                {
+                    continue;
+                }
+                let z = z + Vector3::from_fn(|_, _| rng.random_range(-0.5..0.5));
+                match ids[w] {
+                    Some(id) => g.add_observation(kf, id, z).unwrap(),
+                    None => {
+                        let psi = Vector3::new(x.x / x.z, x.y / x.z, 1.0 / x.z)
+                            * (1.0 + rng.random_range(-0.05..0.05));
+                        ids[w] = Some(g.add_point(kf, psi, z).unwrap());
+                    }
+                }
+            }
+            crate::registration::register_locally(&mut g, kf, 15, kf.checked_sub(1)).unwrap();
+            g.set_reference(kf).unwrap();
+        }
+        g.check_invariants().unwrap();
+        (g, cam, truth)
+    }
+
+    #[test]
+    fn windows_constraints_and_marginalisation_follow_the_thesis() {
+        let (mut g, cam, _) = wall_graph(1, 30);
+        let mut dwo = DoubleWindowOptimiser::new(DwoParams::new(5, 10, 300.0, 0.5));
+        let stats = dwo.optimise(&mut g, &cam).unwrap();
+        assert_eq!(stats.inner_frames, 5);
+        assert!(stats.outer_frames >= 10);
+        assert!(stats.pose_constraints > 0 && stats.point_constraints > 0);
+        assert!(stats.cost_after < stats.cost_before);
+        g.check_invariants().unwrap();
+        // Inner-window edges are not marginalised; edges with an end outside the inner window
+        // of this optimisation that were inner before keep a stored pose.
+        for &a in &dwo.previous.inner {
+            for &b in &dwo.previous.inner {
+                if let Some(e) = g.edge(a, b) {
+                    assert!(
+                        e.relative.is_none(),
+                        "edge {a}–{b} inside W1 is marginalised"
+                    );
+                }
+            }
+        }
+        // Move the reference back: the old inner window's edges leaving W1 are marginalised.
+        let old_inner = dwo.previous.inner.clone();
+        g.set_reference(3).unwrap();
+        let plan = dwo.plan(&g).unwrap();
+        assert!(
+            !plan.reinitialised.is_empty(),
+            "keyframes entering the window are re-initialised"
+        );
+        dwo.optimise(&mut g, &cam).unwrap();
+        for &a in &old_inner {
+            for &b in &old_inner {
+                if let Some(e) = g.edge(a, b) {
+                    let now_inner =
+                        dwo.previous.inner.contains(&a) && dwo.previous.inner.contains(&b);
+                    assert_eq!(e.relative.is_none(), now_inner, "edge {a}–{b}");
+                }
+            }
+        }
+        g.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn full_window_optimisation_reduces_the_error_without_a_fixed_origin() {
+        let (mut g, cam, truth) = wall_graph(2, 12);
+        let err = |g: &SlamGraph<3>| {
+            (1..truth.len())
+                .map(|k| {
+                    let est = g
+                        .pose(k)
+                        .unwrap()
+                        .compose(&g.pose(k - 1).unwrap().inverse());
+                    let tru = Sim3::from_se3(&truth[k].compose(&truth[k - 1].inverse()));
+                    (est.translation() - tru.translation()).norm()
+                })
+                .sum::<f64>()
+        };
+        let before = err(&g);
+        let mut params = DwoParams::new(usize::MAX, 0, 300.0, 0.5);
+        params.iterations = 10;
+        let mut dwo = DoubleWindowOptimiser::new(params);
+        dwo.optimise(&mut g, &cam).unwrap();
+        assert!(err(&g) < 0.3 * before, "{} → {}", before, err(&g));
+    }
+
+    #[test]
+    fn tracking_reads_the_graph_while_the_optimiser_runs() {
+        let (g, cam, _) = wall_graph(3, 40);
+        let shared = SharedGraph::new(g);
+        let running = AtomicBool::new(true);
+        let reads_during = AtomicUsize::new(0);
+        let mut params = DwoParams::new(usize::MAX, 0, 300.0, 0.5);
+        params.iterations = 30;
+        let mut dwo = DoubleWindowOptimiser::new(params);
+        std::thread::scope(|s| {
+            let optimiser = s.spawn(|| {
+                let r = dwo.optimise_shared(&shared, &cam);
+                running.store(false, Ordering::SeqCst);
+                r
+            });
+            // The "tracking thread": candidate points of N1 and the reference pose, and a new
+            // keyframe with an observation, all while the optimisation runs.
+            let mut added = false;
+            while running.load(Ordering::SeqCst) {
+                let started = std::time::Instant::now();
+                {
+                    let g = shared.read();
+                    let r = g.reference().unwrap();
+                    let candidates = crate::registration::tracking_candidates(&g, r);
+                    assert!(!candidates.is_empty());
+                    assert!(g.pose(r).is_ok());
+                }
+                assert!(
+                    started.elapsed() < std::time::Duration::from_millis(200),
+                    "a read waited for the optimiser"
+                );
+                if running.load(Ordering::SeqCst) {
+                    reads_during.fetch_add(1, Ordering::SeqCst);
+                }
+                if !added {
+                    let mut g = shared.write();
+                    let r = g.reference().unwrap();
+                    let pose = g.pose(r).unwrap();
+                    let kf = g.add_keyframe(pose);
+                    let p = *g.keyframe(r).unwrap().observations().keys().next().unwrap();
+                    let z = g.keyframe(r).unwrap().observations()[&p];
+                    g.add_observation(kf, p, z).unwrap();
+                    added = true;
+                }
+            }
+            let stats = optimiser.join().unwrap().unwrap();
+            assert!(stats.cost_after < stats.cost_before);
+        });
+        assert!(
+            reads_during.load(Ordering::SeqCst) > 0,
+            "no read overlapped the optimisation"
+        );
+        let g = shared.into_inner();
+        g.check_invariants().unwrap();
+        assert_eq!(g.num_keyframes(), 41);
+    }
+}

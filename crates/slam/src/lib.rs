@@ -9,3 +9,4 @@ pub mod dwo;
 pub mod feature_init;
 pub mod graph;
 pub mod pose_graph;
+pub mod registration;

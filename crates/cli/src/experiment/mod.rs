@@ -5,12 +5,16 @@ use clap::{Args, Subcommand};
 use std::path::PathBuf;
 
 pub mod cbh_jacobians;
+pub mod dwo;
 
 /// The experiments of the thesis.
 #[derive(Subcommand, Debug)]
 pub enum ExperimentCommand {
     /// Thesis Table 5.1: accuracy of the CBH approximations of the pose-graph Jacobian.
     CbhJacobians(CbhArgs),
+    /// Thesis §6.5.1, Figures 6.9–6.12: full BA vs double window optimisation (cDWO, gDWO,
+    /// cDWO with a fixed outer window) on the simulated spiral and double loop.
+    Dwo(dwo::DwoArgs),
 }
 
 /// Options of `dwslam experiment cbh-jacobians`.
@@ -31,6 +35,7 @@ pub struct CbhArgs {
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::CbhJacobians(args) => run_cbh(args),
+        ExperimentCommand::Dwo(args) => dwo::run(args),
     }
 }
 
