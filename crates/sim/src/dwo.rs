@@ -152,7 +152,8 @@ pub fn double_loop_world(seed: u64, per_loop: usize) -> World {
             .and_then(|s| s.parse().ok())
             .unwrap_or(d)
     };
-    let radius = env("DWO_RING", 8.0);
+    let circle_radius = env("DWO_CIRCLE", 5.0);
+    let radius = circle_radius + env("DWO_WALL", 3.0);
     let half_height = env("DWO_HALF_HEIGHT", 2.0);
     let density = env("DWO_DENSITY", 10.0);
     let heading = env("DWO_HEADING", 0.0).to_radians();
@@ -164,7 +165,12 @@ pub fn double_loop_world(seed: u64, per_loop: usize) -> World {
         points.extend(ring(&mut rng, inner, -half_height, half_height, n));
     }
     World {
-        camera_from_world: crate::trajectory::circle_with_heading(5.0, per_loop, 2, heading),
+        camera_from_world: crate::trajectory::circle_with_heading(
+            circle_radius,
+            per_loop,
+            2,
+            heading,
+        ),
         points,
         appearance_closures: vec![(per_loop, 0)],
     }
@@ -784,17 +790,20 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                 normalise,
             )
         };
-        let rmse_all_pairs =
-            if k % config.all_pairs_every.max(1) == 0 || closures.contains_key(&k) || k + 1 == n {
-                relative_translation_rmse(
-                    &estimate,
-                    truth,
-                    (0..=k).flat_map(|i| (i + 1..=k).map(move |j| (i, j))),
-                    normalise,
-                )
-            } else {
-                f64::NAN
-            };
+        let rmse_all_pairs = if k % config.all_pairs_every.max(1) == 0
+            || closures.contains_key(&k)
+            || closures.contains_key(&(k + 1))
+            || k + 1 == n
+        {
+            relative_translation_rmse(
+                &estimate,
+                truth,
+                (0..=k).flat_map(|i| (i + 1..=k).map(move |j| (i, j))),
+                normalise,
+            )
+        } else {
+            f64::NAN
+        };
         let local_scale = if k >= 5 {
             let est = (estimate[k].inverse().act(&Vector3::zeros())
                 - estimate[k - 5].inverse().act(&Vector3::zeros()))

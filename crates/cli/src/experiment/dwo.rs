@@ -58,15 +58,16 @@ pub struct DwoArgs {
 }
 
 impl DwoArgs {
-    /// The demo: the monocular double loop, all methods, into `out/demo`.
+    /// The demo: the monocular double loop with constant-time double window optimisation
+    /// (cDWO), plots and `summary.json` into `dwslam-demo/`.
     pub fn demo() -> Self {
         DwoArgs {
             scenario: ScenarioArg::DoubleLoop,
             sensor: None,
-            out: PathBuf::from("out/demo"),
+            out: PathBuf::from("dwslam-demo"),
             keyframes: None,
             seed: 1,
-            methods: None,
+            methods: Some(vec!["cdwo".into()]),
             threads: 1,
         }
     }
