@@ -30,7 +30,7 @@ enum Command {
     #[command(subcommand)]
     Inspect(inspect::InspectCommand),
     /// The demo: double window optimisation on the simulated monocular double loop (thesis
-    /// Figures 6.11–6.12) with cDWO; plots and summary.json written to dwslam-demo/.
+    /// Figures 6.11–6.12) with cDWO and gDWO; plots and summary.json written to dwslam-demo/.
     Demo,
 }
 

@@ -30,7 +30,7 @@
 //! distortion of scale drift that edges alone cannot see).
 
 use crate::sensor::{MonoSensor, Sensor, StereoSensor};
-use crate::trajectory::{centre, spiral};
+use crate::trajectory::{centre, circle, spiral};
 use crate::world::{box_walls, ring};
 use geom::align::{align_se3, align_sim3};
 use geom::{PinholeCamera, StereoCamera};
@@ -141,37 +141,23 @@ pub fn spiral_world(seed: u64, keyframes: usize) -> World {
     }
 }
 
-/// The double loop of thesis §6.5.1: two loops of `per_loop` keyframes on a circle of radius
-/// 5 m looking outwards at a ring of radius 8 m and height 4 m (10 points per m²); the place
-/// recogniser matches the first keyframe of the second loop with the first keyframe.
+/// The double loop of thesis §6.5.1 (Figure 6.11): two loops of `per_loop` keyframes on a
+/// large circle of radius 40 m, the camera looking outwards at the wall of a ring-shaped
+/// building 3 m away (radius 43 m, 4 m high, 5 points per m²). Between keyframes the camera
+/// moves 1.7 m for `per_loop = 150`, so a point stays in view for only a few keyframes: the
+/// monocular map drifts in scale along the loop (thesis §5.1). The place recogniser (not
+/// simulated) matches the first keyframe of the second loop with the first keyframe.
 pub fn double_loop_world(seed: u64, per_loop: usize) -> World {
+    const CIRCLE_RADIUS: f64 = 40.0;
+    const WALL_DISTANCE: f64 = 3.0;
+    const HALF_HEIGHT: f64 = 2.0;
+    const DENSITY: f64 = 5.0;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let env = |k: &str, d: f64| {
-        std::env::var(k)
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(d)
-    };
-    let circle_radius = env("DWO_CIRCLE", 5.0);
-    let radius = circle_radius + env("DWO_WALL", 3.0);
-    let half_height = env("DWO_HALF_HEIGHT", 2.0);
-    let density = env("DWO_DENSITY", 10.0);
-    let heading = env("DWO_HEADING", 0.0).to_radians();
-    let inner = env("DWO_INNER_RING", 0.0);
-    let n = (std::f64::consts::TAU * radius * 2.0 * half_height * density) as usize;
-    let mut points = ring(&mut rng, radius, -half_height, half_height, n);
-    if inner > 0.0 {
-        let n = (std::f64::consts::TAU * inner * 2.0 * half_height * density) as usize;
-        points.extend(ring(&mut rng, inner, -half_height, half_height, n));
-    }
+    let radius = CIRCLE_RADIUS + WALL_DISTANCE;
+    let n = (std::f64::consts::TAU * radius * 2.0 * HALF_HEIGHT * DENSITY) as usize;
     World {
-        camera_from_world: crate::trajectory::circle_with_heading(
-            circle_radius,
-            per_loop,
-            2,
-            heading,
-        ),
-        points,
+        camera_from_world: circle(CIRCLE_RADIUS, per_loop, 2, true),
+        points: ring(&mut rng, radius, -HALF_HEIGHT, HALF_HEIGHT, n),
         appearance_closures: vec![(per_loop, 0)],
     }
 }
@@ -539,6 +525,10 @@ pub fn run<C: SimCamera<N>, const N: usize>(
     let mut pending: BTreeMap<usize, Vec<(KeyframeId, SVector<f64, N>)>> = BTreeMap::new();
     let mut records = Vec::with_capacity(n);
     const PENDING_AGE: usize = 10;
+    // 3D–3D matches needed to accept an injected appearance loop closure: a Sim(3) has 7
+    // degrees of freedom and each match gives 3 equations, so 10 matches over-determine it
+    // more than fourfold.
+    const MIN_APPEARANCE_MATCHES: usize = 10;
     let min_parallax = 1.5f64.to_radians();
 
     for k in 0..n {
@@ -569,9 +559,11 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                         matched_world.insert(*w);
                     }
                 }
-                if k == 1 && normalise {
-                    // Monocular bootstrap: the first two keyframes define the gauge and scale.
-                    Sim3::from_se3(&truth[1])
+                if normalise && (k == 1 || (matches.len() < 6 && graph.num_points() < 30)) {
+                    // Monocular bootstrap (the initialisation of a live system is not
+                    // simulated): the first keyframes, until the map has points to track,
+                    // take their true poses, which define the gauge and the scale.
+                    Sim3::from_se3(&truth[k])
                 } else {
                     let prev = graph.pose(k - 1).map_err(graph_err)?;
                     let guess = match k.checked_sub(2).and_then(|i| graph.pose(i).ok()) {
@@ -591,14 +583,6 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                 }
             }
         };
-        if std::env::var_os("DWO_DEBUG").is_some() {
-            eprintln!(
-                "kf {k}: {} measured, {} matched, n1 {:?}",
-                meas.len(),
-                matches.len(),
-                reference.map(|r| graph.n1(r).len())
-            );
-        }
         // 2. The keyframe, its tracked observations, local registration.
         let kf = graph.add_keyframe(pose);
         debug_assert_eq!(kf, k);
@@ -610,21 +594,20 @@ pub fn run<C: SimCamera<N>, const N: usize>(
         // 3. Appearance loop closure injected by the simulator.
         let mut appearance = false;
         if let Some(&old) = closures.get(&k) {
-            let own: BTreeMap<usize, PointId> = graph
-                .keyframe(kf)
-                .expect("added")
-                .observations()
-                .keys()
-                .map(|&p| (world_of[p], p))
-                .collect();
-            let old_points: BTreeMap<usize, PointId> = graph
-                .keyframe(old)
-                .ok_or(slam::graph::GraphError::UnknownKeyframe(old))
-                .map_err(graph_err)?
-                .observations()
-                .keys()
-                .map(|&p| (world_of[p], p))
-                .collect();
+            // The local maps of both places (the points visible from N1 of each keyframe),
+            // as the place recogniser's 3D–3D correspondences (thesis §6.4.2).
+            if graph.keyframe(old).is_none() {
+                return Err(graph_err(slam::graph::GraphError::UnknownKeyframe(old)));
+            }
+            let local_map = |g: &SlamGraph<N>, k: KeyframeId| -> BTreeMap<usize, PointId> {
+                let mut m = BTreeMap::new();
+                for p in registration::tracking_candidates(g, k) {
+                    m.entry(world_of[p]).or_insert(p);
+                }
+                m
+            };
+            let own = local_map(&graph, kf);
+            let old_points = local_map(&graph, old);
             let (mut target, mut source, mut old_matches) = (Vec::new(), Vec::new(), Vec::new());
             for (w, z) in meas {
                 let Some(&p_old) = old_points.get(w) else {
@@ -643,7 +626,7 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                     old_matches.push((p_old, *z));
                 }
             }
-            if old_matches.len() >= config.theta {
+            if old_matches.len() >= MIN_APPEARANCE_MATCHES {
                 let relative = if normalise {
                     align_sim3(&target, &source).ok()
                 } else {
@@ -700,13 +683,6 @@ pub fn run<C: SimCamera<N>, const N: usize>(
             )
             .map_err(reg_err)?;
             metric_loop_edges = closed.len();
-            if std::env::var_os("DWO_DEBUG").is_some() {
-                eprintln!(
-                    "kf {k}: {} loop candidates found, {} closures",
-                    loop_matches.len(),
-                    closed.len()
-                );
-            }
             {
                 let observed: BTreeSet<PointId> = graph
                     .keyframe(kf)

@@ -79,23 +79,6 @@ pub fn circle(radius: f64, n_per_loop: usize, loops: usize, outward: bool) -> Ve
         .collect()
 }
 
-/// [`circle`] with the camera turned by `heading` radians from the outward radial direction
-/// towards the direction of motion (`0`: outwards, `π/2`: looking ahead along the circle,
-/// a forward-moving camera).
-pub fn circle_with_heading(radius: f64, n_per_loop: usize, loops: usize, heading: f64) -> Vec<Se3> {
-    let up = Vector3::z();
-    (0..n_per_loop * loops)
-        .map(|k| {
-            let a = TAU * k as f64 / n_per_loop as f64;
-            let centre = Vector3::new(radius * a.cos(), radius * a.sin(), 0.0);
-            let radial = Vector3::new(a.cos(), a.sin(), 0.0);
-            let tangent = Vector3::new(-a.sin(), a.cos(), 0.0);
-            let forward = radial * heading.cos() + tangent * heading.sin();
-            pose_looking(&centre, &forward, &up)
-        })
-        .collect()
-}
-
 /// A planar coil (trochoid): the camera circles `loops` times on a circle of radius
 /// `loop_radius` whose centre advances along world `+x` by `advance_per_loop` per loop, `n`
 /// poses in all, looking outwards from the moving circle centre — loopy local motion combined

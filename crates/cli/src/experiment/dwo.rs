@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 pub enum ScenarioArg {
     /// 500 keyframes on a planar coil along a corridor (Figures 6.9–6.10).
     Spiral,
-    /// Two loops of 150 keyframes around a ring, monocular scale drift (Figures 6.11–6.12).
+    /// Two loops of 150 keyframes on a 40 m circle, monocular scale drift (Figures 6.11–6.12).
     DoubleLoop,
 }
 
@@ -59,7 +59,8 @@ pub struct DwoArgs {
 
 impl DwoArgs {
     /// The demo: the monocular double loop with constant-time double window optimisation
-    /// (cDWO), plots and `summary.json` into `dwslam-demo/`.
+    /// (cDWO) and with the outer window covering the whole map (gDWO), plots and
+    /// `summary.json` into `dwslam-demo/`.
     pub fn demo() -> Self {
         DwoArgs {
             scenario: ScenarioArg::DoubleLoop,
@@ -67,7 +68,7 @@ impl DwoArgs {
             out: PathBuf::from("dwslam-demo"),
             keyframes: None,
             seed: 1,
-            methods: Some(vec!["cdwo".into()]),
+            methods: Some(vec!["cdwo".into(), "gdwo".into()]),
             threads: 1,
         }
     }
