@@ -384,12 +384,15 @@ pub enum RunError {
     TooShort,
 }
 
+/// Per keyframe, the noisy measurements `(world point index, z)`.
+pub type Measurements<const N: usize> = Vec<Vec<(usize, SVector<f64, N>)>>;
+
 /// Noisy measurements of each keyframe: `(world point, z)`, the same for every method.
 pub fn measure<S: Sensor<N>, const N: usize>(
     sensor: &S,
     world: &World,
     seed: u64,
-) -> Vec<Vec<(usize, SVector<f64, N>)>> {
+) -> Measurements<N> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, sensor.sigma().max(0.0)).expect("σ ≥ 0");
     world
@@ -860,10 +863,7 @@ pub fn seconds(d: Duration) -> f64 {
 mod tests {
     use super::*;
 
-    fn short_spiral(
-        seed: u64,
-        keyframes: usize,
-    ) -> (StereoSensor, World, Vec<Vec<(usize, Vector3<f64>)>>) {
+    fn short_spiral(seed: u64, keyframes: usize) -> (StereoSensor, World, Measurements<3>) {
         let sensor = StereoSensor::vga(300.0, 0.05, 1.0);
         let world = spiral_world(seed, keyframes);
         let meas = measure(&sensor, &world, seed);

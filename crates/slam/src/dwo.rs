@@ -495,7 +495,7 @@ impl DoubleWindowOptimiser {
             let Some(kf) = graph.keyframe(a) else {
                 continue;
             };
-            for (&b, _) in kf.edges() {
+            for &b in kf.edges().keys() {
                 if a < b
                     && self.previous.inner.contains(&b)
                     && !(window.inner.contains(&a) && window.inner.contains(&b))

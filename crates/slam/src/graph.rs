@@ -610,7 +610,7 @@ impl<const N: usize> SlamGraph<N> {
         let mut keyframe_count = 0;
         for (i, k) in self.keyframes() {
             keyframe_count += 1;
-            for (&p, _) in &k.observations {
+            for &p in k.observations.keys() {
                 match self.point(p) {
                     None => return bad(format!("keyframe {i} observes missing point {p}")),
                     Some(pt) if !pt.observers.contains(&i) => {

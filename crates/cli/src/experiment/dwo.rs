@@ -297,7 +297,7 @@ fn report(
     )?;
     // Window contents of cDWO (Figure 6.10(b), bottom).
     if let Some(c) = results.iter().find(|r| r.method == Method::Cdwo) {
-        let counts: [(&str, fn(&KeyframeRecord) -> f64); 4] = [
+        let counts: [(&str, RecordValue); 4] = [
             ("frames", |r: &KeyframeRecord| {
                 (r.stats.inner_frames + r.stats.outer_frames) as f64
             }),
@@ -463,6 +463,9 @@ fn report(
     );
     Ok(())
 }
+
+/// A per-keyframe quantity to plot.
+type RecordValue = fn(&KeyframeRecord) -> f64;
 
 fn nan_null(x: f64) -> serde_json::Value {
     if x.is_finite() {
