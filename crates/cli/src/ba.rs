@@ -57,6 +57,9 @@ pub struct BaArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Sparse Cholesky organisation of the reduced camera system (`--solver schur-cholesky`).
+    #[arg(long, value_enum, default_value_t = crate::pgo::CholeskyArg::Auto)]
+    pub cholesky: crate::pgo::CholeskyArg,
     /// Huber kernel of this width in pixels (default: plain least squares).
     #[arg(long)]
     pub huber: Option<f64>,
@@ -189,6 +192,7 @@ pub fn run(args: BaArgs) -> Result<()> {
         function_tolerance: args.function_tolerance,
         threads: args.threads,
         pcg_tolerance: args.pcg_tolerance,
+        cholesky_method: args.cholesky.into(),
         ..Default::default()
     };
     if !args.quiet {

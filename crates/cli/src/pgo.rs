@@ -13,6 +13,27 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The group the poses are optimised in.
+/// Organisation of the sparse Cholesky factorisation (shared by `pgo` and `ba`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum CholeskyArg {
+    /// faer's choice from the flop count per non-zero of the factor
+    Auto,
+    /// Column by column, scalar (best for very sparse factors)
+    Simplicial,
+    /// Dense panels of columns (supernodes)
+    Supernodal,
+}
+
+impl From<CholeskyArg> for lsq::CholeskyMethod {
+    fn from(a: CholeskyArg) -> Self {
+        match a {
+            CholeskyArg::Auto => lsq::CholeskyMethod::Auto,
+            CholeskyArg::Simplicial => lsq::CholeskyMethod::Simplicial,
+            CholeskyArg::Supernodal => lsq::CholeskyMethod::Supernodal,
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Group {
     /// Rigid motions: SE(3) for 3D files, SE(2) for 2D files.
@@ -103,6 +124,9 @@ pub struct PgoArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Sparse Cholesky organisation (`--solver cholesky`).
+    #[arg(long, value_enum, default_value_t = CholeskyArg::Auto)]
+    pub cholesky: CholeskyArg,
     /// Information of the log-scale σ of each constraint for `--group sim3` (default: the mean
     /// rotational information of the constraint, so scale is held as firmly as rotation).
     #[arg(long)]
@@ -189,6 +213,7 @@ fn optimise<G: LieGroup<D> + Manifold, const D: usize>(
         function_tolerance: args.relative_tolerance,
         absolute_function_tolerance: args.absolute_tolerance,
         threads: args.threads,
+        cholesky_method: args.cholesky.into(),
         damping: match args.damping {
             DampingArg::Marquardt => lsq::Damping::Marquardt,
             DampingArg::Levenberg => lsq::Damping::Levenberg,

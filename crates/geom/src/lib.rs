@@ -19,6 +19,11 @@
 //! - [`BalCamera`]: the Bundler / "Bundle Adjustment in the Large" camera `(f, k₁, k₂)` with its
 //!   sign conventions (looks down `−z`).
 //!
+//! - [`ransac`]: seeded RANSAC generic over minimal solvers, with the 3-point similarity of
+//!   thesis eq. 5.9–5.14;
+//! - [`two_view`]: normalised 8-point essential matrix, pose recovery with the cheirality
+//!   check, triangulation, 8-point RANSAC relative pose (thesis §3.5).
+//!
 //! Points behind a camera are reported as [`CameraError::BehindCamera`], never projected.
 
 #![warn(missing_docs)]
@@ -27,7 +32,9 @@ pub mod align;
 mod bal;
 mod distortion;
 mod pinhole;
+pub mod ransac;
 mod stereo;
+pub mod two_view;
 
 pub use bal::{BalCamera, BalProjection};
 pub use distortion::{DistortedCamera, Distortion, Equidistant, RadTan};

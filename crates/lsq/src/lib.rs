@@ -42,7 +42,7 @@ pub use manifold::Manifold;
 pub use problem::{FactorId, Problem, ProblemError};
 pub use robust::RobustKernel;
 pub use solver::{
-    Algorithm, Damping, IterationStats, LinearSolver, SolveError, SolverOptions, Summary,
-    Termination,
+    Algorithm, CholeskyMethod, Damping, IterationStats, LinearSolver, SolveError, SolverOptions,
+    Summary, Termination,
 };
 pub use values::{Values, Var, VarKey};

@@ -1,12 +1,13 @@
 //! Solvers of the damped normal equations `(H + D)·δ = −g` (thesis §3.3.4–3.3.6).
 
 use crate::block::{BlockSymmetric, invert_spd_in_place};
+use crate::solver::CholeskyMethod;
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
-use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
     factorize_symbolic_cholesky,
 };
+use faer::sparse::linalg::{SupernodalThreshold, amd};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
 
@@ -54,7 +55,7 @@ pub(crate) struct SparseCholesky {
 
 impl SparseCholesky {
     /// Analyses the pattern of `h`.
-    pub(crate) fn new(h: &BlockSymmetric) -> Result<Self, LinearError> {
+    pub(crate) fn new(h: &BlockSymmetric, method: CholeskyMethod) -> Result<Self, LinearError> {
         let n = h.dim();
         let mut col_ptr = Vec::with_capacity(n + 1);
         let mut row_idx = Vec::new();
@@ -111,7 +112,15 @@ impl SparseCholesky {
             pattern,
             Side::Lower,
             SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(&perm, &perm_inv, n)),
-            CholeskySymbolicParams::default(),
+            CholeskySymbolicParams {
+                supernodal_flop_ratio_threshold: match method {
+                    CholeskyMethod::Auto if n >= 3 * nb => SupernodalThreshold::FORCE_SUPERNODAL,
+                    CholeskyMethod::Auto => SupernodalThreshold::AUTO,
+                    CholeskyMethod::Simplicial => SupernodalThreshold::FORCE_SIMPLICIAL,
+                    CholeskyMethod::Supernodal => SupernodalThreshold::FORCE_SUPERNODAL,
+                },
+                ..CholeskySymbolicParams::default()
+            },
         )
         .map_err(|e| LinearError::Symbolic(format!("{e:?}")))?;
         let l_values = vec![0.0; symbolic.len_val()];

@@ -12,6 +12,7 @@ use crate::kernels;
 use crate::linear::{
     LinearError, LinearSolve, SparseCholesky, apply_block_diagonal, conjugate_gradients,
 };
+use crate::solver::CholeskyMethod;
 use rayon::prelude::*;
 
 /// The elimination structure, shared by both variants.
@@ -184,7 +185,11 @@ pub(crate) struct SchurCholesky {
 }
 
 impl SchurCholesky {
-    pub(crate) fn new(h: &BlockSymmetric, num_reduced: usize) -> Result<Self, LinearError> {
+    pub(crate) fn new(
+        h: &BlockSymmetric,
+        num_reduced: usize,
+        method: CholeskyMethod,
+    ) -> Result<Self, LinearError> {
         let elim = Elimination::new(h, num_reduced);
         let nr = num_reduced;
         // Pattern of S: H_cc plus every pair of kept blocks sharing an eliminated one.
@@ -236,7 +241,7 @@ impl SchurCholesky {
             contrib[fill[k]] = pair;
             fill[k] += 1;
         }
-        let cholesky = SparseCholesky::new(&s)?;
+        let cholesky = SparseCholesky::new(&s, method)?;
         Ok(SchurCholesky {
             zeros: vec![0.0; s.dim()],
             rhs: vec![0.0; s.dim()],

@@ -3,8 +3,8 @@
 use lie::{LieGroup, Se3, So3};
 use lsq::numeric::check_jacobians;
 use lsq::{
-    Algorithm, Factor, Information, Jacobians, LinearSolver, Problem, ProblemError, RobustKernel,
-    SolverOptions, Termination, Values, Var, VarKey,
+    Algorithm, CholeskyMethod, Factor, Information, Jacobians, LinearSolver, Problem, ProblemError,
+    RobustKernel, SolverOptions, Termination, Values, Var, VarKey,
 };
 use nalgebra::{DMatrix, DVector, SMatrix, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
@@ -135,6 +135,28 @@ fn max_error(p: &Problem, vars: &[Var<Vector3<f64>>], solution: &DVector<f64>) -
         .enumerate()
         .map(|(i, v)| (p.value(*v) - solution.rows(3 * i, 3)).amax())
         .fold(0.0, f64::max)
+}
+
+#[test]
+fn every_cholesky_organisation_finds_the_least_squares_solution() {
+    for method in [
+        CholeskyMethod::Auto,
+        CholeskyMethod::Simplicial,
+        CholeskyMethod::Supernodal,
+    ] {
+        let (mut p, vars, solution, _) = linear_problem(3, 40, true);
+        let options = SolverOptions {
+            algorithm: Algorithm::GaussNewton,
+            linear_solver: LinearSolver::SparseCholesky,
+            cholesky_method: method,
+            max_iterations: 5,
+            function_tolerance: 1e-14,
+            ..Default::default()
+        };
+        p.optimize(&options).unwrap();
+        let err = max_error(&p, &vars, &solution);
+        assert!(err < 1e-9, "{method:?}: error {err:e}");
+    }
 }
 
 #[test]

@@ -5,6 +5,7 @@
 
 pub mod ba_scene;
 pub mod dwo;
+pub mod scale_drift;
 pub mod sensor;
 pub mod trajectory;
 pub mod world;

@@ -75,14 +75,31 @@ pub fn ring(
     z_max: f64,
     n: usize,
 ) -> Vec<Vector3<f64>> {
+    thick_ring(rng, radius, 0.0, z_min, z_max, n)
+}
+
+/// `n` points uniform in angle, height (`[z_min, z_max]`) and radius
+/// (`[radius − thickness/2, radius + thickness/2]`) about the world `z` axis: a ring-shaped
+/// distribution with depth relief, so that a camera inside it does not see a (nearly) planar
+/// scene, which is degenerate for the 8-point algorithm. `thickness = 0` is [`ring`].
+pub fn thick_ring(
+    rng: &mut ChaCha8Rng,
+    radius: f64,
+    thickness: f64,
+    z_min: f64,
+    z_max: f64,
+    n: usize,
+) -> Vec<Vector3<f64>> {
+    let half = 0.5 * thickness.abs();
     (0..n)
         .map(|_| {
             let a = rng.random_range(0.0..std::f64::consts::TAU);
-            Vector3::new(
-                radius * a.cos(),
-                radius * a.sin(),
-                rng.random_range(z_min..=z_max),
-            )
+            let r = if half > 0.0 {
+                rng.random_range(radius - half..=radius + half)
+            } else {
+                radius
+            };
+            Vector3::new(r * a.cos(), r * a.sin(), rng.random_range(z_min..=z_max))
         })
         .collect()
 }

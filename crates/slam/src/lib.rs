@@ -6,7 +6,9 @@
 
 pub mod ba;
 pub mod dwo;
+pub mod exploration;
 pub mod feature_init;
 pub mod graph;
+pub mod loop_closure;
 pub mod pose_graph;
 pub mod registration;

@@ -83,6 +83,81 @@ impl<G: LieGroup<D> + Manifold, const D: usize> Factor for BetweenFactor<G, D> {
     }
 }
 
+/// How the Jacobians of pose-graph constraints are computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PoseGraphJacobian {
+    /// Analytic: exact or CBH ([`BetweenFactor`]).
+    Analytic(LogJacobian),
+    /// Central differences ([`NumericBetweenFactor`]), the reference of thesis Fig. 5.4.
+    Numeric,
+}
+
+/// The step of [`NumericBetweenFactor`]'s central differences: near the cube root of the
+/// machine epsilon, balancing truncation (`O(h²)`) against rounding (`O(ε/h)`) errors.
+pub const NUMERIC_STEP: f64 = 1e-5;
+
+/// [`BetweenFactor`]'s residual `d = log(T_ji·T_i·T_j⁻¹)` with numeric Jacobians: central
+/// differences through the optimiser's left update, column `k` of `∂d/∂ε_i` being
+/// `(d(exp(h·e_k)·T_i) − d(exp(−h·e_k)·T_i)) / 2h` (and likewise for `T_j`): `4·D` residual
+/// evaluations per linearisation (thesis §5.4, Fig. 5.4's "numerical Jacobian").
+pub struct NumericBetweenFactor<G, const D: usize> {
+    /// `T_i`.
+    pub from: Var<G>,
+    /// `T_j`.
+    pub to: Var<G>,
+    /// The measured `T_ji`.
+    pub measured: G,
+}
+
+impl<G: LieGroup<D> + Manifold, const D: usize> Factor for NumericBetweenFactor<G, D> {
+    fn residual_dim(&self) -> usize {
+        D
+    }
+
+    fn variables(&self) -> Vec<VarKey> {
+        vec![self.from.key(), self.to.key()]
+    }
+
+    fn evaluate(
+        &self,
+        values: &Values,
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) -> bool {
+        let (t_i, t_j) = (values.get(self.from), values.get(self.to));
+        let r = |a: &G, b: &G| self.measured.compose(a).compose(&b.inverse()).log();
+        residual.copy_from_slice(r(t_i, t_j).as_slice());
+        if let Some(j) = jacobians {
+            for slot in 0..2 {
+                if !j.wants(slot) {
+                    continue;
+                }
+                let mut block = SMatrix::<f64, D, D>::zeros();
+                for k in 0..D {
+                    let mut e = nalgebra::SVector::<f64, D>::zeros();
+                    e[k] = NUMERIC_STEP;
+                    let (plus, minus) = if slot == 0 {
+                        (
+                            r(&t_i.retract_left(&e), t_j),
+                            r(&t_i.retract_left(&(-e)), t_j),
+                        )
+                    } else {
+                        (
+                            r(t_i, &t_j.retract_left(&e)),
+                            r(t_i, &t_j.retract_left(&(-e))),
+                        )
+                    };
+                    block
+                        .column_mut(k)
+                        .copy_from(&((plus - minus) / (2.0 * NUMERIC_STEP)));
+                }
+                j.set(slot, &block);
+            }
+        }
+        true
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -155,6 +230,32 @@ mod tests {
                 errs[2] < errs[1] && errs[1] < errs[0],
                 "noise {noise}: {errs:?}"
             );
+        }
+    }
+
+    #[test]
+    fn numeric_jacobians_match_the_exact_ones() {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        for _ in 0..20 {
+            let mut tangent =
+                || nalgebra::SVector::<f64, 7>::from_fn(|_, _| rng.random_range(-0.8..0.8));
+            let mut values = Values::new();
+            let a = values.add(Sim3::exp(&tangent()));
+            let b = values.add(Sim3::exp(&tangent()));
+            let measured = Sim3::exp(&tangent());
+            let numeric = NumericBetweenFactor {
+                from: a,
+                to: b,
+                measured,
+            };
+            let check = check_jacobians(&numeric, &values, 1e-4).unwrap();
+            assert!(check.passes(1e-7), "{check:?}");
+            // Same residual as the analytic factor.
+            let mut r1 = [0.0; 7];
+            let mut r2 = [0.0; 7];
+            numeric.evaluate(&values, &mut r1, None);
+            BetweenFactor::new(a, b, measured).evaluate(&values, &mut r2, None);
+            assert_eq!(r1, r2);
         }
     }
 
@@ -234,6 +335,22 @@ impl<G: LieGroup<D> + Manifold, const D: usize> PoseGraphProblem<G, D> {
         fixed: &[usize],
         jacobian: LogJacobian,
     ) -> Result<Self, PoseGraphError> {
+        Self::with_jacobian(
+            camera_from_world,
+            constraints,
+            fixed,
+            PoseGraphJacobian::Analytic(jacobian),
+        )
+    }
+
+    /// [`new`](Self::new) with analytic ([`BetweenFactor`]) or numeric
+    /// ([`NumericBetweenFactor`]) Jacobians.
+    pub fn with_jacobian(
+        camera_from_world: &[G],
+        constraints: &[Constraint<G, D>],
+        fixed: &[usize],
+        jacobian: PoseGraphJacobian,
+    ) -> Result<Self, PoseGraphError> {
         let mut problem = lsq::Problem::new();
         let poses: Vec<Var<G>> = camera_from_world
             .iter()
@@ -254,21 +371,31 @@ impl<G: LieGroup<D> + Manifold, const D: usize> PoseGraphProblem<G, D> {
                 D,
                 c.information.as_slice(),
             ));
-            problem
-                .add_factor(
+            let added = match jacobian {
+                PoseGraphJacobian::Analytic(method) => problem.add_factor(
                     BetweenFactor {
                         from: poses[c.i],
                         to: poses[c.j],
                         measured: c.measured,
-                        jacobian,
+                        jacobian: method,
                     },
                     info,
                     None,
-                )
-                .map_err(|source| PoseGraphError::Factor {
-                    constraint: k,
-                    source,
-                })?;
+                ),
+                PoseGraphJacobian::Numeric => problem.add_factor(
+                    NumericBetweenFactor {
+                        from: poses[c.i],
+                        to: poses[c.j],
+                        measured: c.measured,
+                    },
+                    info,
+                    None,
+                ),
+            };
+            added.map_err(|source| PoseGraphError::Factor {
+                constraint: k,
+                source,
+            })?;
         }
         for &f in fixed {
             if let Some(v) = poses.get(f) {

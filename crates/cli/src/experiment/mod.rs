@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 pub mod cbh_jacobians;
 pub mod dwo;
+pub mod scale_drift;
 
 /// The experiments of the thesis.
 #[derive(Subcommand, Debug)]
@@ -15,6 +16,8 @@ pub enum ExperimentCommand {
     /// Thesis §6.5.1, Figures 6.9–6.12: full BA vs double window optimisation (cDWO, gDWO,
     /// cDWO with a fixed outer window) on the simulated spiral and double loop.
     Dwo(dwo::DwoArgs),
+    /// Thesis §5.4: scale drift in monocular SLAM, SE(3) vs Sim(3) loop closure (Fig. 5.4–5.6).
+    ScaleDrift(scale_drift::ScaleDriftArgs),
 }
 
 /// Options of `dwslam experiment cbh-jacobians`.
@@ -36,6 +39,7 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::CbhJacobians(args) => run_cbh(args),
         ExperimentCommand::Dwo(args) => dwo::run(args),
+        ExperimentCommand::ScaleDrift(args) => scale_drift::run(args),
     }
 }
 
