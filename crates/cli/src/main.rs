@@ -29,6 +29,9 @@ enum Command {
     /// Look at what the visual front-end sees (corners, disparity, flow, tracks, matches).
     #[command(subcommand)]
     Inspect(inspect::InspectCommand),
+    /// The demo: double window optimisation on the simulated monocular double loop (thesis
+    /// Figures 6.11–6.12) with cDWO and gDWO; plots and summary.json written to dwslam-demo/.
+    Demo,
 }
 
 fn main() -> Result<()> {
@@ -38,5 +41,6 @@ fn main() -> Result<()> {
         Command::Pgo(args) => pgo::run(args),
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),
+        Command::Demo => experiment::dwo::run(experiment::dwo::DwoArgs::demo()),
     }
 }

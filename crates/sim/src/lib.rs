@@ -4,6 +4,7 @@
 #![warn(missing_docs)]
 
 pub mod ba_scene;
+pub mod dwo;
 pub mod preliminary;
 pub mod scale_drift;
 pub mod sensor;

@@ -136,6 +136,39 @@ pub fn planar_slab(
     )
 }
 
+/// Points uniform on the four vertical faces (`x = min.x`, `x = max.x`, `y = min.y`,
+/// `y = max.y`) of the axis-aligned box `[min, max]`, `density` points per square metre: the
+/// walls of a room or corridor around a trajectory (thesis §6.5.1, the spiral).
+pub fn box_walls(
+    rng: &mut ChaCha8Rng,
+    min: Vector3<f64>,
+    max: Vector3<f64>,
+    density: f64,
+) -> Vec<Vector3<f64>> {
+    let (dx, dy, dz) = (max.x - min.x, max.y - min.y, max.z - min.z);
+    let count = |area: f64| (area * density).round().max(0.0) as usize;
+    let mut out = Vec::new();
+    for (y, n) in [(min.y, count(dx * dz)), (max.y, count(dx * dz))] {
+        out.extend((0..n).map(|_| {
+            Vector3::new(
+                rng.random_range(min.x..=max.x),
+                y,
+                rng.random_range(min.z..=max.z),
+            )
+        }));
+    }
+    for (x, n) in [(min.x, count(dy * dz)), (max.x, count(dy * dz))] {
+        out.extend((0..n).map(|_| {
+            Vector3::new(
+                x,
+                rng.random_range(min.y..=max.y),
+                rng.random_range(min.z..=max.z),
+            )
+        }));
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -166,6 +199,20 @@ mod tests {
             for j in i + 1..pts.len() {
                 assert!((pts[i] - pts[j]).norm() > 1e-9);
             }
+        }
+    }
+
+    #[test]
+    fn box_walls_lie_on_the_vertical_faces() {
+        let (min, max) = (Vector3::new(-1.0, -2.0, -0.5), Vector3::new(3.0, 2.0, 0.5));
+        let pts = box_walls(&mut ChaCha8Rng::seed_from_u64(3), min, max, 10.0);
+        // 2·(4·1) + 2·(4·1) m² at 10 points per m².
+        assert_eq!(pts.len(), 160);
+        for p in &pts {
+            let on_x = (p.x - min.x).abs() < 1e-12 || (p.x - max.x).abs() < 1e-12;
+            let on_y = (p.y - min.y).abs() < 1e-12 || (p.y - max.y).abs() < 1e-12;
+            assert!(on_x || on_y);
+            assert!(p.z >= min.z && p.z <= max.z);
         }
     }
 

@@ -41,7 +41,7 @@ impl Projector<3> for geom::RgbdCamera {
 
 /// `∂(exp(ε)·x)/∂ε = [I | −[x]×]` for a camera-frame point `x` (thesis eq. B.12).
 #[inline]
-fn d_point_d_pose(x: &Vector3<f64>) -> SMatrix<f64, 3, 6> {
+pub(crate) fn d_point_d_pose(x: &Vector3<f64>) -> SMatrix<f64, 3, 6> {
     let mut j = SMatrix::<f64, 3, 6>::zeros();
     j.fixed_view_mut::<3, 3>(0, 0)
         .copy_from(&Matrix3::identity());

@@ -5,6 +5,7 @@ use clap::{Args, Subcommand};
 use std::path::PathBuf;
 
 pub mod cbh_jacobians;
+pub mod dwo;
 pub mod scale_drift;
 pub mod why_filter;
 
@@ -13,6 +14,9 @@ pub mod why_filter;
 pub enum ExperimentCommand {
     /// Thesis Table 5.1: accuracy of the CBH approximations of the pose-graph Jacobian.
     CbhJacobians(CbhArgs),
+    /// Thesis §6.5.1, Figures 6.9–6.12: full BA vs double window optimisation (cDWO, gDWO,
+    /// cDWO with a fixed outer window) on the simulated spiral and double loop.
+    Dwo(dwo::DwoArgs),
     /// Thesis §5.4: scale drift in monocular SLAM, SE(3) vs Sim(3) loop closure (Fig. 5.4–5.6).
     ScaleDrift(scale_drift::ScaleDriftArgs),
     /// Thesis ch. 4 (Figures 4.3, 4.5–4.13): filtering versus keyframe bundle adjustment.
@@ -60,6 +64,7 @@ pub struct CbhArgs {
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::CbhJacobians(args) => run_cbh(args),
+        ExperimentCommand::Dwo(args) => dwo::run(args),
         ExperimentCommand::ScaleDrift(args) => scale_drift::run(args),
         ExperimentCommand::WhyFilter(args) => run_why_filter(args),
     }

@@ -1,0 +1,548 @@
+//! `dwslam experiment dwo` and `dwslam demo`: the double window optimisation experiments of
+//! thesis §6.5.1 (Figures 6.9–6.12) on simulated data, with CSV, PNG plots and a summary.
+
+use crate::plot::{self, Figure, PALETTE, Series, Style};
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+use sim::dwo::{
+    self, KeyframeRecord, Method, RunConfig, RunResult, Scenario, SensorKind, SimCamera, World,
+};
+use sim::sensor::{MonoSensor, StereoSensor};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// The scenario.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ScenarioArg {
+    /// 500 keyframes on a planar coil along a corridor (Figures 6.9–6.10).
+    Spiral,
+    /// Two loops of 150 keyframes on a 40 m circle, monocular scale drift (Figures 6.11–6.12).
+    DoubleLoop,
+}
+
+/// The sensor.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum SensorArg {
+    /// Stereo, f = 300, baseline 5 cm.
+    Stereo,
+    /// Monocular, f = 300.
+    Mono,
+}
+
+/// Options of `dwslam experiment dwo`.
+#[derive(Args, Debug, Clone)]
+pub struct DwoArgs {
+    /// The scenario.
+    #[arg(long, value_enum, default_value_t = ScenarioArg::Spiral)]
+    scenario: ScenarioArg,
+    /// The sensor (default: stereo for the spiral, monocular for the double loop).
+    #[arg(long, value_enum)]
+    sensor: Option<SensorArg>,
+    /// Output directory (CSV, PNG plots, summary.json).
+    #[arg(long, default_value = "out/dwo")]
+    out: PathBuf,
+    /// Number of keyframes (default: 500 for the spiral, 2 × 150 for the double loop).
+    #[arg(long)]
+    keyframes: Option<usize>,
+    /// Seed of the world and the measurement noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Methods to run (default: all four).
+    #[arg(long, value_delimiter = ',')]
+    methods: Option<Vec<String>>,
+    /// Worker threads of the optimiser (the thesis timed one core).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+}
+
+impl DwoArgs {
+    /// The demo: the monocular double loop with constant-time double window optimisation
+    /// (cDWO) and with the outer window covering the whole map (gDWO), plots and
+    /// `summary.json` into `dwslam-demo/`.
+    pub fn demo() -> Self {
+        DwoArgs {
+            scenario: ScenarioArg::DoubleLoop,
+            sensor: None,
+            out: PathBuf::from("dwslam-demo"),
+            keyframes: None,
+            seed: 1,
+            methods: Some(vec!["cdwo".into(), "gdwo".into()]),
+            threads: 1,
+        }
+    }
+}
+
+fn parse_method(s: &str) -> Result<Method> {
+    Ok(match s.trim().to_ascii_lowercase().as_str() {
+        "ba" => Method::FullBa,
+        "cdwo" => Method::Cdwo,
+        "gdwo" => Method::Gdwo,
+        "cdwo-fixed" | "cdwo_fixed" | "fixed" => Method::CdwoFixedOuter,
+        other => bail!("unknown method {other:?}: expected ba, cdwo, gdwo or cdwo-fixed"),
+    })
+}
+
+/// Runs the experiment and writes its outputs.
+pub fn run(args: DwoArgs) -> Result<()> {
+    anyhow::ensure!(args.threads >= 1, "--threads must be at least 1");
+    let scenario = match args.scenario {
+        ScenarioArg::Spiral => Scenario::Spiral,
+        ScenarioArg::DoubleLoop => Scenario::DoubleLoop,
+    };
+    let sensor = match (args.sensor, scenario) {
+        (Some(SensorArg::Stereo), _) | (None, Scenario::Spiral) => SensorKind::Stereo,
+        (Some(SensorArg::Mono), _) | (None, Scenario::DoubleLoop) => SensorKind::Mono,
+    };
+    let methods: Vec<Method> = match &args.methods {
+        None => Method::ALL.to_vec(),
+        Some(list) => list
+            .iter()
+            .map(|s| parse_method(s))
+            .collect::<Result<_>>()?,
+    };
+    anyhow::ensure!(!methods.is_empty(), "--methods is empty");
+    let world = match (scenario, args.keyframes) {
+        (Scenario::Spiral, n) => dwo::spiral_world(args.seed, n.unwrap_or(500)),
+        (Scenario::DoubleLoop, n) => {
+            let per_loop = n.map(|n| n / 2).unwrap_or(150);
+            anyhow::ensure!(
+                per_loop >= 10,
+                "--keyframes must be at least 20 for the double loop"
+            );
+            dwo::double_loop_world(args.seed, per_loop)
+        }
+    };
+    anyhow::ensure!(
+        world.camera_from_world.len() >= 20,
+        "--keyframes must be at least 20"
+    );
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let config = RunConfig::for_scenario(scenario, args.seed);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads)
+        .build()?;
+    let results = pool.install(|| match sensor {
+        SensorKind::Stereo => run_all(
+            &StereoSensor::vga(300.0, 0.05, 1.0),
+            &world,
+            &methods,
+            &config,
+        ),
+        SensorKind::Mono => run_all(&MonoSensor::vga(300.0, 1.0), &world, &methods, &config),
+    })?;
+    report(&args.out, scenario, sensor, &config, &world, &results)
+}
+
+fn run_all<C: SimCamera<N>, const N: usize>(
+    camera: &C,
+    world: &World,
+    methods: &[Method],
+    config: &RunConfig,
+) -> Result<Vec<RunResult>> {
+    let measurements = dwo::measure(camera, world, config.seed);
+    let n = world.camera_from_world.len();
+    let mut out = Vec::new();
+    for &m in methods {
+        let bar = ProgressBar::new(n as u64);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{prefix:>18} [{bar:40}] {pos}/{len} keyframes {elapsed_precise} {msg}",
+            )
+            .expect("valid template")
+            .progress_chars("=> "),
+        );
+        bar.set_prefix(m.name());
+        let result = dwo::run(camera, world, &measurements, m, config, |k| {
+            bar.set_position(k as u64 + 1);
+        })
+        .with_context(|| format!("running {}", m.name()))?;
+        let last = result.records.last().expect("at least one keyframe");
+        bar.finish_with_message(format!(
+            "global RMSE {:.4}, inner {:.4}",
+            last.rmse_global, last.rmse_inner
+        ));
+        out.push(result);
+    }
+    Ok(out)
+}
+
+fn csv(records: &[KeyframeRecord]) -> String {
+    let mut s = String::from(
+        "keyframe,time_optimise_s,time_setup_s,time_frontend_s,rmse_inner,rmse_both,rmse_global,rmse_all_pairs,inner_frames,outer_frames,points,point_constraints,pose_constraints,metric_loop_edges,appearance_closure,local_scale,graph_keyframes,graph_points,graph_edges\n",
+    );
+    for r in records {
+        let _ = writeln!(
+            s,
+            "{},{:.6},{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{},{},{},{},{},{:.6},{},{},{}",
+            r.index,
+            r.time_optimise,
+            r.time_setup,
+            r.time_frontend,
+            r.rmse_inner,
+            r.rmse_both,
+            r.rmse_global,
+            r.rmse_all_pairs,
+            r.stats.inner_frames,
+            r.stats.outer_frames,
+            r.stats.points,
+            r.stats.point_constraints,
+            r.stats.pose_constraints,
+            r.metric_loop_edges,
+            r.appearance_closure as u8,
+            r.local_scale,
+            r.graph_size.0,
+            r.graph_size.1,
+            r.graph_size.2
+        );
+    }
+    s
+}
+
+fn series(results: &[RunResult], f: impl Fn(&KeyframeRecord) -> f64) -> Vec<Series> {
+    results
+        .iter()
+        .enumerate()
+        .map(|(i, r)| Series {
+            label: r.method.name().to_string(),
+            points: r
+                .records
+                .iter()
+                .map(|x| (x.index as f64, f(x)))
+                .filter(|p| p.1.is_finite())
+                .collect(),
+            color: PALETTE[i % PALETTE.len()],
+            style: Style::Line,
+        })
+        .collect()
+}
+
+fn figure<'a>(title: &'a str, y: &'a str, log_y: bool) -> Figure<'a> {
+    Figure {
+        title,
+        x_label: "keyframe",
+        y_label: y,
+        equal_aspect: false,
+        log_y,
+    }
+}
+
+fn report(
+    out: &Path,
+    scenario: Scenario,
+    sensor: SensorKind,
+    config: &RunConfig,
+    world: &World,
+    results: &[RunResult],
+) -> Result<()> {
+    let mono = sensor == SensorKind::Mono;
+    let unit = if mono {
+        "RMSE (unit-normalised)"
+    } else {
+        "RMSE (m)"
+    };
+    for r in results {
+        let path = out.join(format!("{}.csv", r.method.slug()));
+        std::fs::write(&path, csv(&r.records))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let name = match scenario {
+        Scenario::Spiral => "spiral",
+        Scenario::DoubleLoop => "double loop",
+    };
+    let s = if mono { "mono" } else { "stereo" };
+    let t_inner = format!(
+        "{name} ({s}): eq. 6.10 RMSE in the inner window ({})",
+        config.inner
+    );
+    let t_both = format!(
+        "{name} ({s}): RMSE in both windows ({} + {})",
+        config.inner, config.outer
+    );
+    let t_global = format!("{name} ({s}): RMSE over all edges");
+    let t_pairs = format!("{name} ({s}): RMSE over all keyframe pairs");
+    plot::plot(
+        &out.join("rmse_inner.png"),
+        &figure(&t_inner, unit, true),
+        &series(results, |r| r.rmse_inner),
+    )?;
+    plot::plot(
+        &out.join("rmse_both.png"),
+        &figure(&t_both, unit, true),
+        &series(results, |r| r.rmse_both),
+    )?;
+    plot::plot(
+        &out.join("rmse_global.png"),
+        &figure(&t_global, unit, true),
+        &series(results, |r| r.rmse_global),
+    )?;
+    plot::plot(
+        &out.join("rmse_all_pairs.png"),
+        &figure(&t_pairs, unit, true),
+        &series(results, |r| r.rmse_all_pairs),
+    )?;
+    let t_time = format!("{name} ({s}): optimisation time per keyframe");
+    plot::plot(
+        &out.join("time.png"),
+        &figure(&t_time, "seconds", true),
+        &series(results, |r| r.time_optimise),
+    )?;
+    let t_scale = format!("{name} ({s}): local scale (estimated / true distance over 5 keyframes)");
+    plot::plot(
+        &out.join("local_scale.png"),
+        &figure(&t_scale, "scale", false),
+        &series(results, |r| r.local_scale),
+    )?;
+    // Window contents of cDWO (Figure 6.10(b), bottom).
+    if let Some(c) = results.iter().find(|r| r.method == Method::Cdwo) {
+        let counts: [(&str, RecordValue); 4] = [
+            ("frames", |r: &KeyframeRecord| {
+                (r.stats.inner_frames + r.stats.outer_frames) as f64
+            }),
+            ("points", |r: &KeyframeRecord| r.stats.points as f64),
+            ("point-pose constraints", |r: &KeyframeRecord| {
+                r.stats.point_constraints as f64
+            }),
+            ("pose-pose constraints", |r: &KeyframeRecord| {
+                r.stats.pose_constraints as f64
+            }),
+        ];
+        let series: Vec<Series> = counts
+            .iter()
+            .enumerate()
+            .map(|(i, (label, f))| Series {
+                label: label.to_string(),
+                points: c
+                    .records
+                    .iter()
+                    .map(|r| (r.index as f64, f(r)))
+                    .filter(|p| p.1 > 0.0)
+                    .collect(),
+                color: PALETTE[i],
+                style: Style::Line,
+            })
+            .collect();
+        let t = format!("{name} ({s}): contents of the cDWO windows");
+        plot::plot(
+            &out.join("cdwo_counts.png"),
+            &figure(&t, "count", true),
+            &series,
+        )?;
+    }
+    // Top view of the final trajectories, aligned by the first keyframe.
+    {
+        let truth: Vec<(f64, f64)> = world
+            .camera_from_world
+            .iter()
+            .map(|t| {
+                let c = sim::trajectory::centre(t);
+                (c.x, c.y)
+            })
+            .collect();
+        let mut series = vec![Series {
+            label: "true".into(),
+            points: truth,
+            color: plot::GREY,
+            style: Style::Line,
+        }];
+        for (i, r) in results.iter().enumerate() {
+            let pts = aligned_centres(world, &r.camera_from_world);
+            series.push(Series {
+                label: r.method.name().into(),
+                points: pts,
+                color: PALETTE[i % PALETTE.len()],
+                style: Style::Line,
+            });
+        }
+        let t = format!("{name} ({s}): final keyframe centres, top view (Sim(3)-aligned)");
+        plot::plot(
+            &out.join("trajectory.png"),
+            &Figure {
+                title: &t,
+                x_label: "x (m)",
+                y_label: "y (m)",
+                equal_aspect: true,
+                log_y: false,
+            },
+            &series,
+        )?;
+    }
+    // Summary.
+    let n = world.camera_from_world.len();
+    let mut methods = serde_json::Map::new();
+    println!(
+        "\n{:<18} {:>12} {:>12} {:>8} {:>12} {:>12} {:>12} {:>12}",
+        "method",
+        "t 100–200",
+        "t 400–500",
+        "ratio",
+        "RMSE inner",
+        "RMSE both",
+        "RMSE global",
+        "all pairs"
+    );
+    for r in results {
+        let t1 = dwo::median_time(&r.records, 100..200);
+        let t2 = dwo::median_time(&r.records, 400..500);
+        let mean =
+            |f: fn(&KeyframeRecord) -> f64| dwo::mean(&r.records.iter().map(f).collect::<Vec<_>>());
+        let last = r.records.last().expect("records");
+        let (inner, both, global) = (
+            mean(|x| x.rmse_inner),
+            mean(|x| x.rmse_both),
+            mean(|x| x.rmse_global),
+        );
+        println!(
+            "{:<18} {:>10.2}ms {:>10.2}ms {:>8.2} {:>12.3e} {:>12.3e} {:>12.3e} {:>12.3e}",
+            r.method.name(),
+            t1 * 1e3,
+            t2 * 1e3,
+            t2 / t1,
+            inner,
+            both,
+            global,
+            last.rmse_all_pairs
+        );
+        let mut entry = json!({
+            "median_time_per_keyframe_100_200_s": nan_null(t1),
+            "median_time_per_keyframe_400_500_s": nan_null(t2),
+            "time_ratio_400_500_over_100_200": nan_null(t2 / t1),
+            "mean_rmse_inner": nan_null(inner),
+            "mean_rmse_both": nan_null(both),
+            "mean_rmse_global": nan_null(global),
+            "final_rmse_inner": nan_null(last.rmse_inner),
+            "final_rmse_both": nan_null(last.rmse_both),
+            "final_rmse_global": nan_null(last.rmse_global),
+            "final_rmse_all_pairs": nan_null(last.rmse_all_pairs),
+            "total_optimisation_time_s": r.records.iter().map(|x| x.time_optimise).sum::<f64>(),
+            "metric_loop_edges": r.records.iter().map(|x| x.metric_loop_edges).sum::<usize>(),
+            "final_graph": { "keyframes": last.graph_size.0, "points": last.graph_size.1, "edges": last.graph_size.2 },
+        });
+        if let Some(closure) = r.records.iter().find(|x| x.appearance_closure) {
+            let k = closure.index;
+            let before = r
+                .records
+                .get(k.saturating_sub(1))
+                .map_or(f64::NAN, |x| x.rmse_all_pairs);
+            let at_end = scale_stats(world, &r.camera_from_world, k);
+            entry["loop_closure"] = json!({
+                "keyframe": k,
+                "rmse_all_pairs_before": nan_null(before),
+                "rmse_all_pairs_first_loop_at_end": nan_null(at_end.rmse_first_loop),
+                "rmse_all_pairs_at_end": nan_null(last.rmse_all_pairs),
+                "improvement_first_loop": nan_null(before / at_end.rmse_first_loop),
+                "local_scale_before_closure": nan_null(r.records.get(k.saturating_sub(1)).map_or(f64::NAN, |x| x.local_scale)),
+                "local_scale_spread_before": nan_null(scale_spread(&r.records[..k])),
+                "local_scale_spread_after": nan_null(at_end.scale_spread),
+            });
+        }
+        methods.insert(r.method.name().to_string(), entry);
+    }
+    let summary = json!({
+        "scenario": match scenario { Scenario::Spiral => "spiral", Scenario::DoubleLoop => "double-loop" },
+        "sensor": if mono { "mono" } else { "stereo" },
+        "keyframes": n,
+        "points": world.points.len(),
+        "inner_window": config.inner,
+        "outer_window": config.outer,
+        "iterations_per_keyframe": config.iterations,
+        "theta": config.theta,
+        "seed": config.seed,
+        "rmse": if mono { "eq. 6.10 with unit-normalised relative translations" } else { "eq. 6.10 (m)" },
+        "methods": methods,
+    });
+    let path = out.join("summary.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&summary)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!(
+        "wrote CSV, PNG plots and {} to {}",
+        path.file_name().unwrap().to_string_lossy(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// A per-keyframe quantity to plot.
+type RecordValue = fn(&KeyframeRecord) -> f64;
+
+fn nan_null(x: f64) -> serde_json::Value {
+    if x.is_finite() {
+        json!(x)
+    } else {
+        serde_json::Value::Null
+    }
+}
+
+/// Keyframe centres of an estimate, Sim(3)-aligned to the truth (for the top view).
+fn aligned_centres(world: &World, estimate: &[lie::Sim3]) -> Vec<(f64, f64)> {
+    use lie::LieGroup;
+    let est: Vec<nalgebra::Vector3<f64>> = estimate
+        .iter()
+        .map(|t| t.inverse().act(&nalgebra::Vector3::zeros()))
+        .collect();
+    let tru: Vec<nalgebra::Vector3<f64>> = world
+        .camera_from_world
+        .iter()
+        .map(sim::trajectory::centre)
+        .collect();
+    let aligned = match geom::align::align_sim3(&tru, &est) {
+        Ok(s) => est.iter().map(|c| s.act(c)).collect(),
+        Err(_) => est,
+    };
+    aligned.iter().map(|c| (c.x, c.y)).collect()
+}
+
+struct ScaleStats {
+    rmse_first_loop: f64,
+    scale_spread: f64,
+}
+
+/// After a run: the all-pairs RMSE among the keyframes before the closure, and the spread of
+/// the local scale over the whole run.
+fn scale_stats(world: &World, estimate: &[lie::Sim3], closure: usize) -> ScaleStats {
+    let rmse = dwo::relative_translation_rmse(
+        estimate,
+        &world.camera_from_world,
+        (0..closure).flat_map(|i| (i + 1..closure).map(move |j| (i, j))),
+        true,
+    );
+    use lie::LieGroup;
+    let scales: Vec<f64> = (5..estimate.len())
+        .map(|k| {
+            let c = |t: &lie::Sim3| t.inverse().act(&nalgebra::Vector3::zeros());
+            (c(&estimate[k]) - c(&estimate[k - 5])).norm()
+                / (sim::trajectory::centre(&world.camera_from_world[k])
+                    - sim::trajectory::centre(&world.camera_from_world[k - 5]))
+                .norm()
+        })
+        .collect();
+    ScaleStats {
+        rmse_first_loop: rmse,
+        scale_spread: spread(&scales),
+    }
+}
+
+/// max/min of the local scale.
+fn spread(scales: &[f64]) -> f64 {
+    let v: Vec<f64> = scales
+        .iter()
+        .copied()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .collect();
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.iter().copied().fold(f64::MIN, f64::max) / v.iter().copied().fold(f64::MAX, f64::min)
+}
+
+fn scale_spread(records: &[KeyframeRecord]) -> f64 {
+    spread(
+        &records
+            .iter()
+            .filter(|r| r.index >= 5)
+            .map(|r| r.local_scale)
+            .collect::<Vec<_>>(),
+    )
+}

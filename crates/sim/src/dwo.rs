@@ -1,0 +1,922 @@
+//! The double window optimisation experiments of thesis §6.5.1 on simulated data: the spiral
+//! (Figures 6.9–6.10) and the monocular double loop with scale drift (Figures 6.11–6.12).
+//!
+//! A simulated SLAM system runs keyframe by keyframe on a [`SlamGraph`]: the sensor measures
+//! every visible world point with Gaussian noise; data association is perfect but, as in the
+//! live system, *only* among the candidate points of `N1(ref)` (thesis §6.2.5), so that drift
+//! accumulates and revisited places need loop closure. Per keyframe:
+//!
+//! 1. **tracking**: robust motion-only BA against the candidate points, from a
+//!    constant-velocity guess ([`registration::estimate_pose`]);
+//! 2. **local registration** ([`registration::register_locally`], thesis §6.2.6);
+//! 3. **appearance loop closure**, when the scenario injects one (the place recogniser of the
+//!    image front-end is not simulated): the relative pose comes from the 3D–3D matches of
+//!    the two keyframes' points (Sim(3) for monocular, SE(3) for stereo; thesis eq. 5.11–5.14,
+//!    6.9), then [`registration::close_appearance_loop`];
+//! 4. **metric loop closure**: guided search (10-pixel radius around the prediction) for the
+//!    points of `N2 \ N1` ([`registration::loop_candidates`]), then
+//!    [`registration::close_metric_loops`] (thesis §6.4.1);
+//! 5. **new points** for the measurements still unmatched: from the disparity (stereo) or by
+//!    two-view triangulation once the parallax exceeds 1.5° (monocular), anchored in the
+//!    first keyframe that saw them;
+//! 6. **optimisation**: full BA, cDWO, gDWO or cDWO with a fixed outer window
+//!    ([`DoubleWindowOptimiser`]), each an instance of the same double window optimiser.
+//!
+//! Accuracy is the RMSE of relative translations (thesis eq. 6.10) over the graph's edges in
+//! the inner window, in both windows, and in the whole graph, the windows being those of
+//! cDWO (the weighted BFS from the reference keyframe) for every method; for monocular runs
+//! the relative translations are normalised to unit length. As the edges only join covisible
+//! keyframes, the RMSE over *all pairs* of keyframes is reported too (it shows the global
+//! distortion of scale drift that edges alone cannot see).
+
+use crate::sensor::{MonoSensor, Sensor, StereoSensor};
+use crate::trajectory::{centre, circle, spiral};
+use crate::world::{box_walls, ring};
+use geom::align::{align_se3, align_sim3};
+use geom::{PinholeCamera, StereoCamera};
+use lie::{LieGroup, Se3, Sim3};
+use nalgebra::{SVector, Vector2, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use slam::ba::Projector;
+use slam::dwo::{DoubleWindowOptimiser, DwoParams, DwoStats};
+use slam::graph::{KeyframeId, PointId, SlamGraph};
+use slam::registration::{self, MetricLoopParams};
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::{Duration, Instant};
+
+/// The simulated scenarios of thesis §6.5.1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scenario {
+    /// Loopy motion combined with exploration (Figure 6.9): a planar coil along a corridor.
+    Spiral,
+    /// Two loops around a large ring of points (Figure 6.11), closed by appearance at the
+    /// start of the second loop.
+    DoubleLoop,
+}
+
+/// The camera.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SensorKind {
+    /// Rectified stereo, f = 300, baseline 5 cm, 640×480.
+    Stereo,
+    /// Monocular, f = 300, 640×480.
+    Mono,
+}
+
+/// The optimisation methods compared in thesis §6.5.1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Bundle adjustment over all keyframes and points.
+    FullBa,
+    /// Constant-time double window optimisation.
+    Cdwo,
+    /// Double window optimisation whose outer window covers every other keyframe.
+    Gdwo,
+    /// cDWO with the outer window's poses held fixed.
+    CdwoFixedOuter,
+}
+
+impl Method {
+    /// All methods, in plotting order.
+    pub const ALL: [Method; 4] = [
+        Method::FullBa,
+        Method::Cdwo,
+        Method::Gdwo,
+        Method::CdwoFixedOuter,
+    ];
+
+    /// A short name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::FullBa => "BA",
+            Method::Cdwo => "cDWO",
+            Method::Gdwo => "gDWO",
+            Method::CdwoFixedOuter => "cDWO fixed outer",
+        }
+    }
+
+    /// A file-name friendly name.
+    pub fn slug(self) -> &'static str {
+        match self {
+            Method::FullBa => "ba",
+            Method::Cdwo => "cdwo",
+            Method::Gdwo => "gdwo",
+            Method::CdwoFixedOuter => "cdwo_fixed",
+        }
+    }
+}
+
+/// A simulated world: true keyframe poses, points and the injected appearance loop closures.
+#[derive(Clone, Debug)]
+pub struct World {
+    /// True `camera_from_world` of each keyframe.
+    pub camera_from_world: Vec<Se3>,
+    /// World points.
+    pub points: Vec<Vector3<f64>>,
+    /// `(query keyframe, matched old keyframe)`: the place recogniser's detections.
+    pub appearance_closures: Vec<(usize, usize)>,
+}
+
+/// The spiral of thesis §6.5.1: `keyframes` poses on a planar coil, 50 per loop (radius 0.5 m,
+/// advancing 0.5 m per loop; 500 keyframes make 10 loops), looking outwards at the walls of a
+/// corridor 4 m wide and 3 m high reaching 2.5 m beyond both ends of the coil (15 points per
+/// m²).
+pub fn spiral_world(seed: u64, keyframes: usize) -> World {
+    let loops = keyframes as f64 / 50.0;
+    let advance = 0.5;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let camera_from_world = spiral(keyframes, 0.5, loops, advance);
+    let points = box_walls(
+        &mut rng,
+        Vector3::new(-2.5, -2.0, -1.5),
+        Vector3::new(2.5 + advance * loops, 2.0, 1.5),
+        15.0,
+    );
+    World {
+        camera_from_world,
+        points,
+        appearance_closures: Vec::new(),
+    }
+}
+
+/// The double loop of thesis §6.5.1 (Figure 6.11): two loops of `per_loop` keyframes on a
+/// large circle of radius 40 m, the camera looking outwards at the wall of a ring-shaped
+/// building 3 m away (radius 43 m, 4 m high, 5 points per m²). Between keyframes the camera
+/// moves 1.7 m for `per_loop = 150`, so a point stays in view for only a few keyframes: the
+/// monocular map drifts in scale along the loop (thesis §5.1). The place recogniser (not
+/// simulated) matches the first keyframe of the second loop with the first keyframe.
+pub fn double_loop_world(seed: u64, per_loop: usize) -> World {
+    const CIRCLE_RADIUS: f64 = 40.0;
+    const WALL_DISTANCE: f64 = 3.0;
+    const HALF_HEIGHT: f64 = 2.0;
+    const DENSITY: f64 = 5.0;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let radius = CIRCLE_RADIUS + WALL_DISTANCE;
+    let n = (std::f64::consts::TAU * radius * 2.0 * HALF_HEIGHT * DENSITY) as usize;
+    World {
+        camera_from_world: circle(CIRCLE_RADIUS, per_loop, 2, true),
+        points: ring(&mut rng, radius, -HALF_HEIGHT, HALF_HEIGHT, n),
+        appearance_closures: vec![(per_loop, 0)],
+    }
+}
+
+/// A simulated camera: the sensor, its measurement model, and how a point is initialised.
+pub trait SimCamera<const N: usize>: Sensor<N> {
+    /// The measurement model.
+    type Projector: Projector<N> + Clone;
+    /// The measurement model.
+    fn projector(&self) -> Self::Projector;
+    /// `ψ` from one measurement (stereo: from the disparity), or `None` (monocular).
+    fn inverse_depth_from_one_view(&self, z: &SVector<f64, N>) -> Option<Vector3<f64>>;
+    /// The viewing ray `(x/z, y/z, 1)` of a measurement.
+    fn ray(&self, z: &SVector<f64, N>) -> Vector3<f64>;
+    /// Whether relative translations are compared up to scale (monocular).
+    fn scale_free(&self) -> bool;
+    /// Focal length (pixels).
+    fn focal(&self) -> f64;
+}
+
+fn pinhole_ray(c: &PinholeCamera, u: f64, v: f64) -> Vector3<f64> {
+    Vector3::new((u - c.cx) / c.fx, (v - c.cy) / c.fy, 1.0)
+}
+
+impl SimCamera<3> for StereoSensor {
+    type Projector = StereoCamera;
+    fn projector(&self) -> StereoCamera {
+        self.camera
+    }
+    fn inverse_depth_from_one_view(&self, z: &Vector3<f64>) -> Option<Vector3<f64>> {
+        // Depth f·b/d (thesis eq. 6.6); points with under one pixel of disparity are too far.
+        let d = z.x - z.z;
+        if d < 1.0 {
+            return None;
+        }
+        let ray = self.ray(z);
+        let inverse_depth = d / (self.camera.pinhole.fx * self.camera.baseline);
+        Some(Vector3::new(ray.x, ray.y, inverse_depth))
+    }
+    fn ray(&self, z: &Vector3<f64>) -> Vector3<f64> {
+        pinhole_ray(&self.camera.pinhole, z.x, z.y)
+    }
+    fn scale_free(&self) -> bool {
+        false
+    }
+    fn focal(&self) -> f64 {
+        self.camera.pinhole.fx
+    }
+}
+
+impl SimCamera<2> for MonoSensor {
+    type Projector = PinholeCamera;
+    fn projector(&self) -> PinholeCamera {
+        self.camera
+    }
+    fn inverse_depth_from_one_view(&self, _: &Vector2<f64>) -> Option<Vector3<f64>> {
+        None
+    }
+    fn ray(&self, z: &Vector2<f64>) -> Vector3<f64> {
+        pinhole_ray(&self.camera, z.x, z.y)
+    }
+    fn scale_free(&self) -> bool {
+        true
+    }
+    fn focal(&self) -> f64 {
+        self.camera.fx
+    }
+}
+
+/// Parameters of a run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunConfig {
+    /// `M1` of cDWO (also the evaluation's inner window).
+    pub inner: usize,
+    /// `M2` of cDWO (also the evaluation's outer window).
+    pub outer: usize,
+    /// Joint iterations per keyframe (thesis: 3).
+    pub iterations: usize,
+    /// `Θ`, covisible points for an edge (thesis: 15–30).
+    pub theta: usize,
+    /// Size of `N2` for metric loop closure.
+    pub n2: usize,
+    /// Guided-search radius (pixels) of metric loop closure (thesis: e.g. 10).
+    pub guided_radius: f64,
+    /// Evaluate the all-pairs RMSE every this many keyframes (it is quadratic).
+    pub all_pairs_every: usize,
+    /// Noise seed.
+    pub seed: u64,
+}
+
+impl RunConfig {
+    /// Windows of the spiral (inner 15, outer 50) or the double loop (30, 100).
+    pub fn for_scenario(scenario: Scenario, seed: u64) -> Self {
+        let (inner, outer) = match scenario {
+            Scenario::Spiral => (15, 50),
+            Scenario::DoubleLoop => (30, 100),
+        };
+        RunConfig {
+            inner,
+            outer,
+            iterations: 3,
+            theta: 20,
+            n2: 100,
+            guided_radius: 10.0,
+            all_pairs_every: 5,
+            seed,
+        }
+    }
+
+    /// The optimiser parameters of `method`.
+    pub fn dwo_params(&self, method: Method, focal: f64, sigma: f64) -> DwoParams {
+        let (inner, outer, fix) = match method {
+            Method::FullBa => (usize::MAX, 0, false),
+            Method::Cdwo => (self.inner, self.outer, false),
+            Method::Gdwo => (self.inner, usize::MAX, false),
+            Method::CdwoFixedOuter => (self.inner, self.outer, true),
+        };
+        let mut p = DwoParams::new(inner, outer, focal, sigma);
+        p.iterations = self.iterations;
+        p.fix_outer = fix;
+        p
+    }
+}
+
+/// What happened at one keyframe.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct KeyframeRecord {
+    /// Keyframe index.
+    pub index: usize,
+    /// Optimisation time (set-up, structure-only and joint iterations, write-back), seconds.
+    pub time_optimise: f64,
+    /// Of which problem set-up (planning and building the least-squares problem), seconds.
+    pub time_setup: f64,
+    /// Simulated front end (tracking, registration, loop closure, new points), seconds.
+    pub time_frontend: f64,
+    /// Eq. 6.10 over the edges inside the inner window.
+    pub rmse_inner: f64,
+    /// Eq. 6.10 over the edges inside both windows.
+    pub rmse_both: f64,
+    /// Eq. 6.10 over all edges.
+    pub rmse_global: f64,
+    /// Eq. 6.10 over all pairs of keyframes (every `all_pairs_every` keyframes, else NaN).
+    pub rmse_all_pairs: f64,
+    /// Optimisation statistics (window sizes, constraints).
+    pub stats: DwoStatsRecord,
+    /// Metric loop-closure edges added at this keyframe.
+    pub metric_loop_edges: usize,
+    /// Whether an appearance loop closure was inserted at this keyframe.
+    pub appearance_closure: bool,
+    /// Estimated over true distance between the camera centres of this keyframe and the one
+    /// five keyframes earlier (the local scale; 1 for a perfect estimate).
+    pub local_scale: f64,
+    /// Keyframes, points and edges in the graph.
+    pub graph_size: (usize, usize, usize),
+}
+
+/// The counts of [`DwoStats`] (durations are in [`KeyframeRecord`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DwoStatsRecord {
+    /// Keyframes in `W1`.
+    pub inner_frames: usize,
+    /// Keyframes in `W2`.
+    pub outer_frames: usize,
+    /// Points optimised.
+    pub points: usize,
+    /// Point-pose constraints.
+    pub point_constraints: usize,
+    /// Pose-pose constraints.
+    pub pose_constraints: usize,
+}
+
+impl From<&DwoStats> for DwoStatsRecord {
+    fn from(s: &DwoStats) -> Self {
+        DwoStatsRecord {
+            inner_frames: s.inner_frames,
+            outer_frames: s.outer_frames,
+            points: s.points,
+            point_constraints: s.point_constraints,
+            pose_constraints: s.pose_constraints,
+        }
+    }
+}
+
+/// The result of one run.
+#[derive(Clone, Debug)]
+pub struct RunResult {
+    /// The method.
+    pub method: Method,
+    /// One record per keyframe.
+    pub records: Vec<KeyframeRecord>,
+    /// Final estimated keyframe poses.
+    pub camera_from_world: Vec<Sim3>,
+}
+
+/// Why a run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Tracking or registration failed.
+    #[error("keyframe {keyframe}: {source}")]
+    Registration {
+        /// Keyframe index.
+        keyframe: usize,
+        /// The cause.
+        source: registration::RegistrationError,
+    },
+    /// The optimisation failed.
+    #[error("keyframe {keyframe}: {source}")]
+    Optimisation {
+        /// Keyframe index.
+        keyframe: usize,
+        /// The cause.
+        source: slam::dwo::DwoError,
+    },
+    /// A graph operation failed.
+    #[error("keyframe {keyframe}: {source}")]
+    Graph {
+        /// Keyframe index.
+        keyframe: usize,
+        /// The cause.
+        source: slam::graph::GraphError,
+    },
+    /// The world has fewer than two keyframes.
+    #[error("a run needs at least two keyframes")]
+    TooShort,
+}
+
+/// Per keyframe, the noisy measurements `(world point index, z)`.
+pub type Measurements<const N: usize> = Vec<Vec<(usize, SVector<f64, N>)>>;
+
+/// Noisy measurements of each keyframe: `(world point, z)`, the same for every method.
+pub fn measure<S: Sensor<N>, const N: usize>(
+    sensor: &S,
+    world: &World,
+    seed: u64,
+) -> Measurements<N> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, sensor.sigma().max(0.0)).expect("σ ≥ 0");
+    world
+        .camera_from_world
+        .iter()
+        .map(|t| {
+            world
+                .points
+                .iter()
+                .enumerate()
+                .filter_map(|(w, p)| sensor.predict(t, p).map(|z| (w, z)))
+                .map(|(w, z)| {
+                    (
+                        w,
+                        z + SVector::<f64, N>::from_fn(|_, _| noise.sample(&mut rng)),
+                    )
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// RMSE of relative translations (thesis eq. 6.10) over `pairs`, optionally normalised to unit
+/// length (monocular).
+pub fn relative_translation_rmse(
+    estimate: &[Sim3],
+    truth: &[Se3],
+    pairs: impl Iterator<Item = (usize, usize)>,
+    normalise: bool,
+) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (i, j) in pairs {
+        let mut est = *estimate[i].compose(&estimate[j].inverse()).translation();
+        let mut tru = *truth[i].compose(&truth[j].inverse()).translation();
+        if normalise {
+            if est.norm() < 1e-12 || tru.norm() < 1e-12 {
+                continue;
+            }
+            est.normalize_mut();
+            tru.normalize_mut();
+        }
+        sum += (est - tru).norm_squared();
+        n += 1;
+    }
+    if n == 0 {
+        f64::NAN
+    } else {
+        (sum / n as f64).sqrt()
+    }
+}
+
+fn edges_within<const N: usize>(
+    graph: &SlamGraph<N>,
+    set: &BTreeSet<KeyframeId>,
+) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    for &a in set {
+        if let Some(k) = graph.keyframe(a) {
+            out.extend(
+                k.edges()
+                    .keys()
+                    .filter(|&&b| a < b && set.contains(&b))
+                    .map(|&b| (a, b)),
+            );
+        }
+    }
+    out
+}
+
+/// Midpoint triangulation of two rays given as `T⁻¹(λ·ray)`; returns the point in the frame
+/// of `t_a` if it lies in front of both cameras and the rays' parallax exceeds `min_parallax`
+/// radians.
+fn triangulate(
+    t_a: &Sim3,
+    ray_a: &Vector3<f64>,
+    t_b: &Sim3,
+    ray_b: &Vector3<f64>,
+    min_parallax: f64,
+) -> Option<Vector3<f64>> {
+    let (ia, ib) = (t_a.inverse(), t_b.inverse());
+    let (ca, cb) = (ia.act(&Vector3::zeros()), ib.act(&Vector3::zeros()));
+    let da = (ia.act(ray_a) - ca).normalize();
+    let db = (ib.act(ray_b) - cb).normalize();
+    let cos = da.dot(&db);
+    if cos > min_parallax.cos() {
+        return None;
+    }
+    // Minimise ‖ca + λ·da − cb − μ·db‖².
+    let w = ca - cb;
+    let (b, d, e) = (da.dot(&db), da.dot(&w), db.dot(&w));
+    let denom = 1.0 - b * b;
+    let lambda = (b * e - d) / denom;
+    let mu = (e - b * d) / denom;
+    if lambda <= 0.0 || mu <= 0.0 {
+        return None;
+    }
+    let p = (ca + da * lambda + cb + db * mu) / 2.0;
+    let y = t_a.act(&p);
+    (y.z > 0.0).then_some(y)
+}
+
+/// Runs the simulated SLAM system with one method over `world`; `progress` is called after
+/// each keyframe.
+pub fn run<C: SimCamera<N>, const N: usize>(
+    camera: &C,
+    world: &World,
+    measurements: &[Vec<(usize, SVector<f64, N>)>],
+    method: Method,
+    config: &RunConfig,
+    mut progress: impl FnMut(usize),
+) -> Result<RunResult, RunError> {
+    let n = world.camera_from_world.len().min(measurements.len());
+    if n < 2 {
+        return Err(RunError::TooShort);
+    }
+    let projector = camera.projector();
+    let sigma = camera.sigma();
+    let normalise = camera.scale_free();
+    let mut optimiser =
+        DoubleWindowOptimiser::new(config.dwo_params(method, camera.focal(), sigma));
+    let loop_params = MetricLoopParams {
+        theta: config.theta,
+        // χ² 95 % quantiles for 2 and 3 degrees of freedom.
+        max_chi2: if N == 2 { 5.99 } else { 7.81 },
+        sigma,
+        image_size: (640.0, 480.0),
+    };
+    let truth = &world.camera_from_world;
+    let closures: BTreeMap<usize, usize> = world.appearance_closures.iter().copied().collect();
+    let mut graph = SlamGraph::<N>::new();
+    let mut world_of: Vec<usize> = Vec::new(); // graph point → world point
+    // Monocular: measurements waiting for parallax, by world point: (keyframe, z).
+    let mut pending: BTreeMap<usize, Vec<(KeyframeId, SVector<f64, N>)>> = BTreeMap::new();
+    let mut records = Vec::with_capacity(n);
+    const PENDING_AGE: usize = 10;
+    // 3D–3D matches needed to accept an injected appearance loop closure: a Sim(3) has 7
+    // degrees of freedom and each match gives 3 equations, so 10 matches over-determine it
+    // more than fourfold.
+    const MIN_APPEARANCE_MATCHES: usize = 10;
+    let min_parallax = 1.5f64.to_radians();
+
+    for k in 0..n {
+        let t0 = Instant::now();
+        let meas = &measurements[k];
+        let graph_err = |source| RunError::Graph {
+            keyframe: k,
+            source,
+        };
+        let reg_err = |source| RunError::Registration {
+            keyframe: k,
+            source,
+        };
+        // 1. Tracking.
+        let reference = graph.reference();
+        let mut matched_world = BTreeSet::new();
+        let mut matches: Vec<(PointId, SVector<f64, N>)> = Vec::new();
+        let pose = match reference {
+            None => Sim3::from_se3(&truth[0]),
+            Some(r) => {
+                let mut by_world: BTreeMap<usize, PointId> = BTreeMap::new();
+                for p in registration::tracking_candidates(&graph, r) {
+                    by_world.entry(world_of[p]).or_insert(p);
+                }
+                for (w, z) in meas {
+                    if let Some(&p) = by_world.get(w) {
+                        matches.push((p, *z));
+                        matched_world.insert(*w);
+                    }
+                }
+                if normalise && (k == 1 || (matches.len() < 6 && graph.num_points() < 30)) {
+                    // Monocular bootstrap (the initialisation of a live system is not
+                    // simulated): the first keyframes, until the map has points to track,
+                    // take their true poses, which define the gauge and the scale.
+                    Sim3::from_se3(&truth[k])
+                } else {
+                    let prev = graph.pose(k - 1).map_err(graph_err)?;
+                    let guess = match k.checked_sub(2).and_then(|i| graph.pose(i).ok()) {
+                        Some(prev2) => prev.compose(&prev2.inverse()).compose(&prev),
+                        None => prev,
+                    };
+                    // Keep the reference's scale: the motion is estimated in its metric.
+                    let guess = Sim3::from_se3(
+                        &guess
+                            .compose(&graph.pose(r).map_err(graph_err)?.inverse())
+                            .rigid_part(),
+                    )
+                    .compose(&graph.pose(r).map_err(graph_err)?);
+                    registration::estimate_pose(&graph, r, &matches, &projector, &guess, sigma, 10)
+                        .map_err(reg_err)?
+                        .camera_from_world
+                }
+            }
+        };
+        // 2. The keyframe, its tracked observations, local registration.
+        let kf = graph.add_keyframe(pose);
+        debug_assert_eq!(kf, k);
+        for (p, z) in &matches {
+            graph.add_observation(kf, *p, *z).map_err(graph_err)?;
+        }
+        registration::register_locally(&mut graph, kf, config.theta, reference).map_err(reg_err)?;
+        graph.set_reference(kf).map_err(graph_err)?;
+        // 3. Appearance loop closure injected by the simulator.
+        let mut appearance = false;
+        if let Some(&old) = closures.get(&k) {
+            // The local maps of both places (the points visible from N1 of each keyframe),
+            // as the place recogniser's 3D–3D correspondences (thesis §6.4.2).
+            if graph.keyframe(old).is_none() {
+                return Err(graph_err(slam::graph::GraphError::UnknownKeyframe(old)));
+            }
+            let local_map = |g: &SlamGraph<N>, k: KeyframeId| -> BTreeMap<usize, PointId> {
+                let mut m = BTreeMap::new();
+                for p in registration::tracking_candidates(g, k) {
+                    m.entry(world_of[p]).or_insert(p);
+                }
+                m
+            };
+            let own = local_map(&graph, kf);
+            let old_points = local_map(&graph, old);
+            let (mut target, mut source, mut old_matches) = (Vec::new(), Vec::new(), Vec::new());
+            for (w, z) in meas {
+                let Some(&p_old) = old_points.get(w) else {
+                    continue;
+                };
+                let here = match own.get(w) {
+                    Some(&p_new) if p_new != p_old => graph.point_in_frame(p_new, kf).ok(),
+                    Some(_) => None,
+                    None => camera
+                        .inverse_depth_from_one_view(z)
+                        .map(|psi| slam::ba::inverse_depth_to_point(&psi)),
+                };
+                if let (Some(x), Ok(y)) = (here, graph.point_in_frame(p_old, old)) {
+                    target.push(x);
+                    source.push(y);
+                    old_matches.push((p_old, *z));
+                }
+            }
+            if old_matches.len() >= MIN_APPEARANCE_MATCHES {
+                let relative = if normalise {
+                    align_sim3(&target, &source).ok()
+                } else {
+                    align_se3(&target, &source).ok().map(|t| Sim3::from_se3(&t))
+                };
+                if let Some(query_from_matched) = relative {
+                    registration::close_appearance_loop(
+                        &mut graph,
+                        kf,
+                        old,
+                        query_from_matched,
+                        &old_matches,
+                    )
+                    .map_err(reg_err)?;
+                    matched_world.extend(old_matches.iter().map(|(p, _)| world_of[*p]));
+                    appearance = true;
+                }
+            }
+        }
+        // 4. Metric loop closure: guided search for the points of N2 \ N1.
+        let mut metric_loop_edges = 0;
+        if k >= 2 {
+            let t_kf = graph.pose(kf).map_err(graph_err)?;
+            let wanted: BTreeMap<usize, SVector<f64, N>> = meas
+                .iter()
+                .filter(|(w, _)| !matched_world.contains(w))
+                .map(|(w, z)| (*w, *z))
+                .collect();
+            let mut found: BTreeMap<usize, (PointId, SVector<f64, N>)> = BTreeMap::new();
+            for p in registration::loop_candidates(&graph, kf, config.n2) {
+                let w = world_of[p];
+                let Some(z) = wanted.get(&w) else { continue };
+                if found.contains_key(&w) {
+                    continue;
+                }
+                let Ok(x) = graph.point_world(p) else {
+                    continue;
+                };
+                let Some((z_hat, _)) = projector.project(&t_kf.act(&x)) else {
+                    continue;
+                };
+                if (z_hat.fixed_rows::<2>(0) - z.fixed_rows::<2>(0)).norm() <= config.guided_radius
+                {
+                    found.insert(w, (p, *z));
+                }
+            }
+            let loop_matches: Vec<(PointId, SVector<f64, N>)> = found.values().copied().collect();
+            let closed = registration::close_metric_loops(
+                &mut graph,
+                kf,
+                &loop_matches,
+                &projector,
+                &loop_params,
+            )
+            .map_err(reg_err)?;
+            metric_loop_edges = closed.len();
+            {
+                let observed: BTreeSet<PointId> = graph
+                    .keyframe(kf)
+                    .expect("added")
+                    .observations()
+                    .keys()
+                    .copied()
+                    .collect();
+                matched_world.extend(
+                    loop_matches
+                        .iter()
+                        .filter(|(p, _)| observed.contains(p))
+                        .map(|(p, _)| world_of[*p]),
+                );
+            }
+        }
+        // 5. New points for the remaining measurements.
+        for (w, z) in meas {
+            if matched_world.contains(w) {
+                pending.remove(w);
+                continue;
+            }
+            if let Some(psi) = camera.inverse_depth_from_one_view(z) {
+                let p = graph.add_point(kf, psi, *z).map_err(graph_err)?;
+                debug_assert_eq!(p, world_of.len());
+                world_of.push(*w);
+                continue;
+            }
+            let entry = pending.entry(*w).or_default();
+            entry.retain(|(j, _)| j + PENDING_AGE >= kf);
+            let ray = camera.ray(z);
+            let triangulated = entry.first().and_then(|&(j, z_j)| {
+                let t_j = graph.pose(j).ok()?;
+                let y = triangulate(&t_j, &camera.ray(&z_j), &pose, &ray, min_parallax)?;
+                Some((j, z_j, y))
+            });
+            match triangulated {
+                Some((j, z_j, y)) => {
+                    let psi = Vector3::new(y.x / y.z, y.y / y.z, 1.0 / y.z);
+                    let p = graph.add_point(j, psi, z_j).map_err(graph_err)?;
+                    world_of.push(*w);
+                    for &(i, z_i) in entry.iter().skip(1) {
+                        graph.add_observation(i, p, z_i).map_err(graph_err)?;
+                    }
+                    graph.add_observation(kf, p, *z).map_err(graph_err)?;
+                    pending.remove(w);
+                }
+                None => entry.push((kf, *z)),
+            }
+        }
+        if k % 50 == 0 {
+            pending.retain(|_, v| v.last().is_some_and(|(j, _)| j + PENDING_AGE >= kf));
+        }
+        // The new points may strengthen the edges of this keyframe: register again (adds the
+        // edges to keyframes that now share Θ points; existing edges keep their relative pose).
+        let time_frontend = t0.elapsed();
+        // 6. Optimisation.
+        let stats = if k >= 1 {
+            optimiser
+                .optimise(&mut graph, &projector)
+                .map_err(|source| RunError::Optimisation {
+                    keyframe: k,
+                    source,
+                })?
+        } else {
+            DwoStats::default()
+        };
+        // Evaluation.
+        let estimate: Vec<Sim3> = (0..=k)
+            .map(|i| graph.pose(i).expect("no removals"))
+            .collect();
+        let tree = graph.weighted_bfs(kf, config.inner + config.outer);
+        let inner: BTreeSet<KeyframeId> = tree.order.iter().take(config.inner).copied().collect();
+        let both: BTreeSet<KeyframeId> = tree.order.iter().copied().collect();
+        let all: BTreeSet<KeyframeId> = (0..=k).collect();
+        let rmse = |set: &BTreeSet<KeyframeId>| {
+            relative_translation_rmse(
+                &estimate,
+                truth,
+                edges_within(&graph, set).into_iter(),
+                normalise,
+            )
+        };
+        let rmse_all_pairs = if k % config.all_pairs_every.max(1) == 0
+            || closures.contains_key(&k)
+            || closures.contains_key(&(k + 1))
+            || k + 1 == n
+        {
+            relative_translation_rmse(
+                &estimate,
+                truth,
+                (0..=k).flat_map(|i| (i + 1..=k).map(move |j| (i, j))),
+                normalise,
+            )
+        } else {
+            f64::NAN
+        };
+        let local_scale = if k >= 5 {
+            let est = (estimate[k].inverse().act(&Vector3::zeros())
+                - estimate[k - 5].inverse().act(&Vector3::zeros()))
+            .norm();
+            let tru = (centre(&truth[k]) - centre(&truth[k - 5])).norm();
+            est / tru
+        } else {
+            1.0
+        };
+        records.push(KeyframeRecord {
+            index: k,
+            time_optimise: stats.total().as_secs_f64(),
+            time_setup: stats.time_setup.as_secs_f64(),
+            time_frontend: time_frontend.as_secs_f64(),
+            rmse_inner: rmse(&inner),
+            rmse_both: rmse(&both),
+            rmse_global: rmse(&all),
+            rmse_all_pairs,
+            stats: DwoStatsRecord::from(&stats),
+            metric_loop_edges,
+            appearance_closure: appearance,
+            local_scale,
+            graph_size: (graph.num_keyframes(), graph.num_points(), graph.num_edges()),
+        });
+        progress(k);
+    }
+    let camera_from_world = (0..n)
+        .map(|i| graph.pose(i).expect("no removals"))
+        .collect();
+    Ok(RunResult {
+        method,
+        records,
+        camera_from_world,
+    })
+}
+
+/// The median of `values` (NaN if empty).
+pub fn median(values: &[f64]) -> f64 {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+/// The mean of the finite `values` (NaN if none).
+pub fn mean(values: &[f64]) -> f64 {
+    let v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+}
+
+/// Median optimisation time per keyframe over keyframes `range` (seconds).
+pub fn median_time(records: &[KeyframeRecord], range: std::ops::Range<usize>) -> f64 {
+    let t: Vec<f64> = records
+        .iter()
+        .filter(|r| range.contains(&r.index))
+        .map(|r| r.time_optimise)
+        .collect();
+    median(&t)
+}
+
+/// A wall-clock duration in seconds (helper for reports).
+pub fn seconds(d: Duration) -> f64 {
+    d.as_secs_f64()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn short_spiral(seed: u64, keyframes: usize) -> (StereoSensor, World, Measurements<3>) {
+        let sensor = StereoSensor::vga(300.0, 0.05, 1.0);
+        let world = spiral_world(seed, keyframes);
+        let meas = measure(&sensor, &world, seed);
+        (sensor, world, meas)
+    }
+
+    #[test]
+    fn spiral_world_is_well_observed() {
+        let (_, world, meas) = short_spiral(1, 500);
+        let counts: Vec<usize> = meas.iter().map(Vec::len).collect();
+        let min = *counts.iter().min().unwrap();
+        assert!(min >= 60, "too few points visible: {min}");
+        assert!(world.points.len() > 1000);
+    }
+
+    #[test]
+    fn cdwo_is_accurate_locally_bounded_and_deterministic_on_a_short_spiral() {
+        // 1.5 revolutions of the spiral (with a metric loop closure) in stereo.
+        let (sensor, world, meas) = short_spiral(3, 500);
+        let world = World {
+            camera_from_world: world.camera_from_world[..80].to_vec(),
+            ..world
+        };
+        let config = RunConfig {
+            inner: 10,
+            outer: 20,
+            ..RunConfig::for_scenario(Scenario::Spiral, 3)
+        };
+        let ba = run(&sensor, &world, &meas, Method::FullBa, &config, |_| {}).unwrap();
+        let cdwo = run(&sensor, &world, &meas, Method::Cdwo, &config, |_| {}).unwrap();
+        let again = run(&sensor, &world, &meas, Method::Cdwo, &config, |_| {}).unwrap();
+        let inner =
+            |r: &RunResult| mean(&r.records.iter().map(|x| x.rmse_inner).collect::<Vec<_>>());
+        let (e_ba, e_dwo) = (inner(&ba), inner(&cdwo));
+        assert!(
+            e_ba < 0.05 && e_dwo < 0.05,
+            "inner RMSE BA {e_ba}, cDWO {e_dwo}"
+        );
+        // The thesis finds cDWO as accurate as BA in the inner window; here it is not yet
+        // (1.9× BA on this scene, 1.6× on the 120-keyframe spiral, see
+        // docs/experiments/dwo.md), so this only guards against it getting worse.
+        assert!(e_dwo < 2.5 * e_ba, "inner RMSE BA {e_ba}, cDWO {e_dwo}");
+        // Open defect: metric loop closure (thesis §6.4.1) is implemented in
+        // `slam::registration::close_metric_loops` but accepts no edge on the simulated spiral
+        // (0 metric loop edges in every run so far), so it is not asserted here.
+        // Same seed, same numbers.
+        for (a, b) in cdwo.records.iter().zip(&again.records) {
+            assert_eq!(a.rmse_global.to_bits(), b.rmse_global.to_bits());
+            assert_eq!(a.stats, b.stats);
+        }
+        // Windows of cDWO stay bounded.
+        let last = cdwo.records.last().unwrap();
+        assert_eq!(last.stats.inner_frames, 10);
+        assert!(last.stats.outer_frames >= 20);
+    }
+}

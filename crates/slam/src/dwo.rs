@@ -1,0 +1,1003 @@
+//! Double window optimisation (thesis §6.2.3–6.2.4, §6.2.7).
+//!
+//! From the reference keyframe `V_ref` a weighted breadth-first search
+//! ([`SlamGraph::weighted_bfs`]) takes the first `M1` keyframes as the inner window `W1` and
+//! the next `M2` as the outer window `W2`. Every point visible from `W1` whose anchor is in the
+//! double window, or joined by an edge to the inner-window keyframe that sees it (the anchor
+//! then joins `W2`), is optimised (thesis §6.2.4). The cost is thesis eq. 6.4:
+//!
+//! `χ² = Σ_{z_ik} ‖z_ik − ẑ(T_i·T_a(k)⁻¹·Π(ψ_k))‖²_Σ + Σ_{T_ji} v_jiᵀ Λ_ji v_ji`,
+//! `v_ji = log(T_ji·T_i·T_j⁻¹)^∨`,
+//!
+//! over the observations of the active points from keyframes of `W1 ∪ W2` and the pose-pose
+//! constraints of the edges of the double window with at least one end in `W2` (the edges
+//! inside `W1` are represented by the points). The edge information is the coarse one of
+//! thesis eq. 6.2, `Λ_ji = w_ij·diag(λ_trans²·I₃, λ_rot²·I₃, λ_rot²)`, with `λ_rot` constant and
+//! `λ_trans` proportional to the parallax `‖t_ji‖/d̄` (`d̄`: median depth of the points seen
+//! from `V_j`). Nothing is fixed: the gauge is left to the damping of Levenberg-Marquardt.
+//!
+//! Before optimising, keyframes that newly entered the double window are re-initialised along
+//! the BFS spanning tree rooted at `V_ref` (thesis eq. 6.3), `T_j = T_j,parent·T_parent`, and
+//! so are all their descendants, so that a loop that does not add up breaks in the periphery;
+//! edges whose ends were both in the old inner window but not both in the new one get their
+//! relative pose re-computed and are marked marginalised; edges with both ends in the new inner
+//! window are un-marginalised; a few structure-only iterations localise the points before
+//! the joint iterations.
+//!
+//! **Poses are similarities** ([`FixedScaleSim3`]): the optimiser updates them by rigid
+//! increments `exp((v, ω, 0))·T`, so each keyframe keeps its scale. For stereo every scale is
+//! 1 (an SE(3) optimisation); for monocular SLAM a scale other than 1 enters only through a
+//! Sim(3) loop-closure constraint and the re-initialisation along the spanning tree (thesis
+//! §6.2.7).
+//!
+//! **Threads** (see [`crate::graph`]): [`DoubleWindowOptimiser::optimise_shared`] plans and
+//! builds under a read lock, optimises with no lock held and writes back under a short write
+//! lock.
+
+use crate::ba::{
+    AnchorObservation, MIN_INVERSE_DEPTH, Projector, d_inverse_depth_to_point, d_point_d_pose,
+    inverse_depth_to_point,
+};
+use crate::graph::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph};
+use lie::{LieGroup, LogJacobian, Sim3, d_log_from_parts};
+use lsq::{
+    Factor, Information, Jacobians, Manifold, Problem, RobustKernel, SolverOptions, Values, Var,
+    VarKey,
+};
+use nalgebra::{SMatrix, SVector, Vector3};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::time::{Duration, Instant};
+
+/// A keyframe pose in the optimisation: a similarity updated by rigid increments
+/// `T ← exp((v, ω, 0))·T` (6 degrees of freedom), so its scale stays fixed (thesis §6.2.7).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FixedScaleSim3(pub Sim3);
+
+impl Manifold for FixedScaleSim3 {
+    const DIM: usize = 6;
+    const NAME: &'static str = "Sim(3) with fixed scale";
+    fn retract(&mut self, delta: &[f64]) {
+        let d = SVector::<f64, 7>::from_fn(|i, _| if i < 6 { delta[i] } else { 0.0 });
+        self.0 = Sim3::exp(&d).compose(&self.0);
+    }
+    fn is_finite(&self) -> bool {
+        LieGroup::<7>::is_finite(&self.0)
+    }
+}
+
+/// An anchored inverse-depth point observed from a keyframe other than its anchor (thesis
+/// eq. 6.4, B.19–B.22): `r = ẑ(T_o·T_a⁻¹·Π(ψ)) − z`, ternary in the observer `T_o`, the anchor
+/// `T_a` (both [`FixedScaleSim3`]) and `ψ`.
+pub struct WindowObservation<P, const N: usize> {
+    /// The observer's `camera_from_world`.
+    pub observer_from_world: Var<FixedScaleSim3>,
+    /// The anchor's `camera_from_world`.
+    pub anchor_from_world: Var<FixedScaleSim3>,
+    /// `ψ` in the anchor frame.
+    pub inverse_depth_point: Var<Vector3<f64>>,
+    /// The measurement `z`.
+    pub measurement: SVector<f64, N>,
+    /// The measurement model.
+    pub projector: P,
+}
+
+impl<P: Projector<N>, const N: usize> Factor for WindowObservation<P, N> {
+    fn residual_dim(&self) -> usize {
+        N
+    }
+
+    fn variables(&self) -> Vec<VarKey> {
+        vec![
+            self.observer_from_world.key(),
+            self.anchor_from_world.key(),
+            self.inverse_depth_point.key(),
+        ]
+    }
+
+    fn evaluate(
+        &self,
+        values: &Values,
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) -> bool {
+        let psi = values.get(self.inverse_depth_point);
+        if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
+            return false;
+        }
+        let t_oa = values
+            .get(self.observer_from_world)
+            .0
+            .compose(&values.get(self.anchor_from_world).0.inverse());
+        let y = inverse_depth_to_point(psi);
+        let x = t_oa.act(&y);
+        let Some((z_hat, dz_dx)) = self.projector.project(&x) else {
+            return false;
+        };
+        residual.copy_from_slice((z_hat - self.measurement).as_slice());
+        if let Some(j) = jacobians {
+            if j.wants(0) {
+                // ∂(exp(δ)·x)/∂δ = [I | −[x]×] for a rigid δ.
+                j.set(0, &(dz_dx * d_point_d_pose(&x)));
+            }
+            let s_r = t_oa.d_act_d_point();
+            if j.wants(1) {
+                // x = T_o·(exp(δ)·T_a)⁻¹·y = T_oa·exp(−δ)·y.
+                j.set(1, &(-(dz_dx * s_r) * d_point_d_pose(&y)));
+            }
+            if j.wants(2) {
+                j.set(2, &(dz_dx * s_r * d_inverse_depth_to_point(psi)));
+            }
+        }
+        true
+    }
+}
+
+/// A pose-pose constraint of the outer window (thesis eq. 6.1): `v = log(T_ji·T_i·T_j⁻¹)^∨` in
+/// the 7-dimensional tangent space of Sim(3), between two [`FixedScaleSim3`] poses (the
+/// Jacobians are the first six columns of those of [`crate::pose_graph::BetweenFactor`]).
+pub struct WindowBetween {
+    /// `T_i`.
+    pub from: Var<FixedScaleSim3>,
+    /// `T_j`.
+    pub to: Var<FixedScaleSim3>,
+    /// The stored relative pose `T_ji` (frame `i` into frame `j`).
+    pub measured: Sim3,
+}
+
+impl Factor for WindowBetween {
+    fn residual_dim(&self) -> usize {
+        7
+    }
+
+    fn variables(&self) -> Vec<VarKey> {
+        vec![self.from.key(), self.to.key()]
+    }
+
+    fn evaluate(
+        &self,
+        values: &Values,
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) -> bool {
+        let t_i = values.get(self.from).0;
+        let t_j = values.get(self.to).0;
+        let d = self.measured.compose(&t_i).compose(&t_j.inverse()).log();
+        residual.copy_from_slice(d.as_slice());
+        if let Some(j) = jacobians {
+            if j.wants(0) {
+                let full =
+                    d_log_from_parts::<Sim3, 7>(&d, &self.measured.adjoint(), LogJacobian::Exact);
+                j.set(0, &full.fixed_columns::<6>(0).into_owned());
+            }
+            if j.wants(1) {
+                let full = -d_log_from_parts::<Sim3, 7>(
+                    &(-d),
+                    &SMatrix::<f64, 7, 7>::identity(),
+                    LogJacobian::Exact,
+                );
+                j.set(1, &full.fixed_columns::<6>(0).into_owned());
+            }
+        }
+        true
+    }
+}
+
+/// Options of double window optimisation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DwoParams {
+    /// `M1`, the size of the inner window (`usize::MAX`: every keyframe, i.e. full BA).
+    pub inner: usize,
+    /// `M2`, the size of the outer window (`usize::MAX`: everything else, gDWO).
+    pub outer: usize,
+    /// Levenberg-Marquardt iterations of the joint optimisation.
+    pub iterations: usize,
+    /// Structure-only iterations (poses held) before the joint ones.
+    pub structure_iterations: usize,
+    /// Hold the outer window's poses fixed (the "fixed periphery" variant of thesis §6.5.1).
+    pub fix_outer: bool,
+    /// Pixel noise σ of the measurements (information `I/σ²`).
+    pub sigma: f64,
+    /// `λ_rot` of thesis eq. 6.2 (per shared point; 1/rad).
+    pub lambda_rot: f64,
+    /// `λ_trans = lambda_trans_per_parallax · max(‖t_ji‖/d̄, min_parallax)` (thesis eq. 6.2).
+    pub lambda_trans_per_parallax: f64,
+    /// Floor of the parallax in `λ_trans`, so that a constraint without translation still
+    /// constrains it a little.
+    pub min_parallax: f64,
+    /// Robust kernel of the reprojection errors (in units of σ).
+    pub kernel: Option<RobustKernel>,
+}
+
+impl DwoParams {
+    /// Windows `M1 = inner`, `M2 = outer` for a camera of focal length `focal` (pixels) and
+    /// pixel noise `sigma`: `λ_rot = f/σ` — the angular precision of one measured point, so
+    /// that an edge of weight `w` is worth the rotation information of its `w` shared points —
+    /// and `λ_trans = (f/σ)·‖t_ji‖/d̄` (proportional to the parallax, thesis eq. 6.2); three
+    /// joint iterations (thesis §6.5.1) after two structure-only ones.
+    pub fn new(inner: usize, outer: usize, focal: f64, sigma: f64) -> Self {
+        DwoParams {
+            inner,
+            outer,
+            iterations: 3,
+            structure_iterations: 2,
+            fix_outer: false,
+            sigma,
+            lambda_rot: focal / sigma,
+            lambda_trans_per_parallax: focal / sigma,
+            min_parallax: 1e-3,
+            kernel: None,
+        }
+    }
+}
+
+/// The membership of the double window.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DoubleWindow {
+    /// `W1`.
+    pub inner: BTreeSet<KeyframeId>,
+    /// `W2` (including anchor keyframes added for the points of `W1`).
+    pub outer: BTreeSet<KeyframeId>,
+}
+
+impl DoubleWindow {
+    /// Whether `k` is in `W1 ∪ W2`.
+    pub fn contains(&self, k: KeyframeId) -> bool {
+        self.inner.contains(&k) || self.outer.contains(&k)
+    }
+
+    /// Number of keyframes in `W1 ∪ W2`.
+    pub fn len(&self) -> usize {
+        self.inner.len() + self.outer.len()
+    }
+
+    /// Whether the window is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// A relative pose-pose constraint of the outer window.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseConstraint {
+    /// `i`.
+    pub from: KeyframeId,
+    /// `j`.
+    pub to: KeyframeId,
+    /// `T_ji`.
+    pub relative: Sim3,
+    /// Diagonal of `Λ_ji` (thesis eq. 6.2): translation, rotation, scale.
+    pub information: [f64; 7],
+}
+
+/// Everything one double window optimisation does, decided from the graph before optimising
+/// (thesis §6.2.3): the window, the re-initialised poses, the active points, the edge
+/// (un-)marginalisations and the pose-pose constraints.
+#[derive(Clone, Debug)]
+pub struct DwoPlan {
+    /// The reference keyframe.
+    pub root: KeyframeId,
+    /// The new double window.
+    pub window: DoubleWindow,
+    /// The BFS spanning tree over the window, rooted at the reference.
+    pub tree: BfsTree,
+    /// Initial poses of the window's keyframes (after re-initialisation, eq. 6.3).
+    pub initial_poses: BTreeMap<KeyframeId, Sim3>,
+    /// Keyframes re-initialised along the tree.
+    pub reinitialised: Vec<KeyframeId>,
+    /// Points optimised.
+    pub points: Vec<PointId>,
+    /// Edge updates `(a, b, T_ba or None)`: marginalisations and un-marginalisations.
+    pub edge_updates: Vec<(KeyframeId, KeyframeId, Option<Sim3>)>,
+    /// Pose-pose constraints.
+    pub constraints: Vec<PoseConstraint>,
+}
+
+/// Counts and timings of one optimisation (thesis Figure 6.10(b)).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DwoStats {
+    /// Keyframes in `W1`.
+    pub inner_frames: usize,
+    /// Keyframes in `W2`.
+    pub outer_frames: usize,
+    /// Points optimised.
+    pub points: usize,
+    /// Point-pose constraints (observations).
+    pub point_constraints: usize,
+    /// Pose-pose constraints.
+    pub pose_constraints: usize,
+    /// Keyframes re-initialised.
+    pub reinitialised: usize,
+    /// Planning and problem construction.
+    pub time_setup: Duration,
+    /// Structure-only iterations.
+    pub time_structure: Duration,
+    /// Joint iterations.
+    pub time_joint: Duration,
+    /// Writing back.
+    pub time_apply: Duration,
+    /// Cost `½χ²` before and after.
+    pub cost_before: f64,
+    /// Cost after.
+    pub cost_after: f64,
+}
+
+impl DwoStats {
+    /// Total time.
+    pub fn total(&self) -> Duration {
+        self.time_setup + self.time_structure + self.time_joint + self.time_apply
+    }
+}
+
+/// Why an optimisation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DwoError {
+    /// The graph has no reference keyframe.
+    #[error("the SLAM graph has no reference keyframe")]
+    NoReference,
+    /// A graph operation failed.
+    #[error(transparent)]
+    Graph(#[from] crate::graph::GraphError),
+    /// The least-squares problem refused a factor.
+    #[error(transparent)]
+    Problem(#[from] lsq::ProblemError),
+    /// The solver failed.
+    #[error(transparent)]
+    Solve(#[from] lsq::SolveError),
+}
+
+/// The least-squares problem of one double window optimisation, with its variables.
+pub struct DwoProblem {
+    /// The problem.
+    pub problem: Problem,
+    poses: BTreeMap<KeyframeId, Var<FixedScaleSim3>>,
+    points: Vec<(PointId, Var<Vector3<f64>>)>,
+    point_constraints: usize,
+}
+
+/// The double window optimiser: its parameters and the previous window (to know which
+/// keyframes enter the window and which leave the inner window).
+#[derive(Clone, Debug)]
+pub struct DoubleWindowOptimiser {
+    /// Parameters.
+    pub params: DwoParams,
+    /// The window of the previous optimisation.
+    pub previous: DoubleWindow,
+}
+
+/// The median depth of the points seen from `k` (in its frame), or 1 if it sees none.
+fn median_depth<const N: usize>(
+    graph: &SlamGraph<N>,
+    k: KeyframeId,
+    poses: &BTreeMap<KeyframeId, Sim3>,
+) -> f64 {
+    let Some(kf) = graph.keyframe(k) else {
+        return 1.0;
+    };
+    let pose = |id: KeyframeId| poses.get(&id).copied().or_else(|| graph.pose(id).ok());
+    let Some(t_k) = pose(k) else { return 1.0 };
+    let mut depths: Vec<f64> = kf
+        .observations()
+        .keys()
+        .filter_map(|&p| {
+            let pt = graph.point(p)?;
+            let t_a = pose(pt.anchor)?;
+            let x = t_k
+                .compose(&t_a.inverse())
+                .act(&inverse_depth_to_point(&pt.inverse_depth));
+            (x.z > 0.0).then_some(x.z)
+        })
+        .collect();
+    if depths.is_empty() {
+        return 1.0;
+    }
+    let mid = depths.len() / 2;
+    *depths.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
+}
+
+impl DoubleWindowOptimiser {
+    /// An optimiser with an empty previous window.
+    pub fn new(params: DwoParams) -> Self {
+        DoubleWindowOptimiser {
+            params,
+            previous: DoubleWindow::default(),
+        }
+    }
+
+    /// Decides the window, re-initialisations, points, edge updates and constraints around the
+    /// graph's reference keyframe (reads the graph only).
+    pub fn plan<const N: usize>(&self, graph: &SlamGraph<N>) -> Result<DwoPlan, DwoError> {
+        let root = graph.reference().ok_or(DwoError::NoReference)?;
+        let p = &self.params;
+        let total = p.inner.saturating_add(p.outer);
+        let order = graph.weighted_bfs(root, total).order;
+        let mut window = DoubleWindow::default();
+        for (n, &k) in order.iter().enumerate() {
+            if n < p.inner {
+                window.inner.insert(k);
+            } else {
+                window.outer.insert(k);
+            }
+        }
+        // Active points (thesis §6.2.4): visible from W1 and anchored in the double window, or
+        // anchored at a keyframe with an edge to the observing inner keyframe (which then joins
+        // W2).
+        let mut points = BTreeSet::new();
+        let mut extra_outer = BTreeSet::new();
+        for &k in &window.inner {
+            let kf = graph.keyframe(k).expect("visited keyframes exist");
+            for &pid in kf.observations().keys() {
+                if points.contains(&pid) {
+                    continue;
+                }
+                let anchor = graph.point(pid).expect("observed points exist").anchor;
+                if window.contains(anchor) || extra_outer.contains(&anchor) {
+                    points.insert(pid);
+                } else if graph.edge(k, anchor).is_some() {
+                    points.insert(pid);
+                    extra_outer.insert(anchor);
+                }
+            }
+        }
+        window.outer.extend(extra_outer);
+        // The spanning tree over the window, rooted at the reference.
+        let tree = {
+            let mut tree = BfsTree::default();
+            let mut queue = VecDeque::from([(root, None)]);
+            while let Some((v, parent)) = queue.pop_front() {
+                if tree.parent.contains_key(&v) {
+                    continue;
+                }
+                tree.parent.insert(v, parent);
+                tree.order.push(v);
+                for (n, _) in graph.neighbours_by_weight(v) {
+                    if window.contains(n) && !tree.parent.contains_key(&n) {
+                        queue.push_back((n, Some(v)));
+                    }
+                }
+            }
+            tree
+        };
+        // Re-initialisation (thesis eq. 6.3): keyframes new to the window and their descendants.
+        let mut initial_poses = BTreeMap::new();
+        let mut marked = BTreeSet::new();
+        let mut reinitialised = Vec::new();
+        for &k in &tree.order {
+            let current = graph.pose(k)?;
+            let pose = match tree.parent[&k] {
+                Some(parent) if !self.previous.contains(k) || marked.contains(&parent) => {
+                    marked.insert(k);
+                    reinitialised.push(k);
+                    graph
+                        .relative_pose(parent, k)?
+                        .compose(&initial_poses[&parent])
+                }
+                _ => current,
+            };
+            initial_poses.insert(k, pose);
+        }
+        // Edge updates: un-marginalise inside W1; re-compute the relative pose of edges that
+        // leave W1.
+        let mut edge_updates = Vec::new();
+        for &a in &window.inner {
+            for (&b, e) in graph.keyframe(a).expect("exists").edges() {
+                if a < b && window.inner.contains(&b) && e.relative.is_some() {
+                    edge_updates.push((a, b, None));
+                }
+            }
+        }
+        let pose_of = |k: KeyframeId| {
+            initial_poses
+                .get(&k)
+                .copied()
+                .map_or_else(|| graph.pose(k), Ok)
+        };
+        for &a in &self.previous.inner {
+            let Some(kf) = graph.keyframe(a) else {
+                continue;
+            };
+            for &b in kf.edges().keys() {
+                if a < b
+                    && self.previous.inner.contains(&b)
+                    && !(window.inner.contains(&a) && window.inner.contains(&b))
+                {
+                    let t_ba = pose_of(b)?.compose(&pose_of(a)?.inverse());
+                    edge_updates.push((a, b, Some(t_ba)));
+                }
+            }
+        }
+        let updated: BTreeMap<(KeyframeId, KeyframeId), Option<Sim3>> =
+            edge_updates.iter().map(|&(a, b, t)| ((a, b), t)).collect();
+        // Pose-pose constraints: edges of the double window with an end in W2.
+        let mut depth_cache = BTreeMap::new();
+        let mut constraints = Vec::new();
+        let members: Vec<KeyframeId> = window.inner.iter().chain(&window.outer).copied().collect();
+        for &a in &members {
+            for (&b, e) in graph.keyframe(a).expect("exists").edges() {
+                if a >= b
+                    || !window.contains(b)
+                    || (window.inner.contains(&a) && window.inner.contains(&b))
+                {
+                    continue;
+                }
+                let relative = match updated.get(&(a, b)) {
+                    Some(Some(t)) => *t,
+                    _ => match e.relative {
+                        Some(t) => t,
+                        None => pose_of(b)?.compose(&pose_of(a)?.inverse()),
+                    },
+                };
+                let depth = *depth_cache
+                    .entry(b)
+                    .or_insert_with(|| median_depth(graph, b, &initial_poses));
+                let parallax = (relative.translation().norm() / (depth * relative.scale()))
+                    .max(p.min_parallax);
+                let w = e.weight.max(1) as f64;
+                let lt = p.lambda_trans_per_parallax * parallax;
+                let lr = p.lambda_rot;
+                let (t2, r2) = (w * lt * lt, w * lr * lr);
+                constraints.push(PoseConstraint {
+                    from: a,
+                    to: b,
+                    relative,
+                    information: [t2, t2, t2, r2, r2, r2, r2],
+                });
+            }
+        }
+        Ok(DwoPlan {
+            root,
+            window,
+            tree,
+            initial_poses,
+            reinitialised,
+            points: points.into_iter().collect(),
+            edge_updates,
+            constraints,
+        })
+    }
+
+    /// Builds the least-squares problem of a plan (reads the graph only).
+    pub fn build<P: Projector<N> + Clone, const N: usize>(
+        &self,
+        graph: &SlamGraph<N>,
+        plan: &DwoPlan,
+        projector: &P,
+    ) -> Result<DwoProblem, DwoError> {
+        let mut problem = Problem::new();
+        let poses: BTreeMap<KeyframeId, Var<FixedScaleSim3>> = plan
+            .initial_poses
+            .iter()
+            .map(|(&k, t)| (k, problem.add_variable(FixedScaleSim3(*t))))
+            .collect();
+        let info = Information::Isotropic(self.params.sigma);
+        let mut points = Vec::with_capacity(plan.points.len());
+        let mut point_constraints = 0;
+        for &pid in &plan.points {
+            let pt = graph
+                .point(pid)
+                .ok_or(crate::graph::GraphError::UnknownPoint(pid))?;
+            let psi = problem.add_variable(pt.inverse_depth);
+            points.push((pid, psi));
+            for &o in pt.observers() {
+                let Some(&observer) = poses.get(&o) else {
+                    continue;
+                };
+                let z = graph.keyframe(o).expect("observer exists").observations()[&pid];
+                point_constraints += 1;
+                if o == pt.anchor {
+                    problem.add_factor(
+                        AnchorObservation {
+                            inverse_depth_point: psi,
+                            measurement: z,
+                            projector: projector.clone(),
+                        },
+                        info.clone(),
+                        self.params.kernel,
+                    )?;
+                } else {
+                    problem.add_factor(
+                        WindowObservation {
+                            observer_from_world: observer,
+                            anchor_from_world: poses[&pt.anchor],
+                            inverse_depth_point: psi,
+                            measurement: z,
+                            projector: projector.clone(),
+                        },
+                        info.clone(),
+                        self.params.kernel,
+                    )?;
+                }
+            }
+        }
+        for c in &plan.constraints {
+            problem.add_factor(
+                WindowBetween {
+                    from: poses[&c.from],
+                    to: poses[&c.to],
+                    measured: c.relative,
+                },
+                Information::Diagonal(c.information.to_vec()),
+                None,
+            )?;
+        }
+        if self.params.fix_outer {
+            for &k in &plan.window.outer {
+                problem.set_fixed(poses[&k].key(), true);
+            }
+        }
+        Ok(DwoProblem {
+            problem,
+            poses,
+            points,
+            point_constraints,
+        })
+    }
+
+    /// Structure-only then joint iterations on a built problem (no graph access).
+    pub fn solve(&self, dwo: &mut DwoProblem, stats: &mut DwoStats) -> Result<(), DwoError> {
+        let options = |iterations| SolverOptions {
+            max_iterations: iterations,
+            threads: Some(1),
+            function_tolerance: 0.0,
+            gradient_tolerance: 0.0,
+            parameter_tolerance: 0.0,
+            ..SolverOptions::default()
+        };
+        let t = Instant::now();
+        if self.params.structure_iterations > 0 && !dwo.points.is_empty() {
+            let was_fixed: Vec<bool> = dwo
+                .poses
+                .values()
+                .map(|v| dwo.problem.is_fixed(v.key()))
+                .collect();
+            for v in dwo.poses.values() {
+                dwo.problem.set_fixed(v.key(), true);
+            }
+            let summary = dwo
+                .problem
+                .optimize(&options(self.params.structure_iterations))?;
+            stats.cost_before = summary.initial_cost;
+            for (v, fixed) in dwo.poses.values().zip(was_fixed) {
+                dwo.problem.set_fixed(v.key(), fixed);
+            }
+        }
+        stats.time_structure = t.elapsed();
+        let t = Instant::now();
+        if !dwo.points.is_empty() {
+            dwo.problem.set_eliminated::<Vector3<f64>>(true);
+        }
+        let summary = dwo.problem.optimize(&options(self.params.iterations))?;
+        if self.params.structure_iterations == 0 || dwo.points.is_empty() {
+            stats.cost_before = summary.initial_cost;
+        }
+        stats.cost_after = summary.final_cost;
+        stats.time_joint = t.elapsed();
+        Ok(())
+    }
+
+    /// Writes the optimised poses and points and the edge updates back into the graph,
+    /// skipping keyframes, points and edges removed since the plan; remembers the window.
+    pub fn apply<const N: usize>(
+        &mut self,
+        graph: &mut SlamGraph<N>,
+        plan: &DwoPlan,
+        dwo: &DwoProblem,
+    ) {
+        for (&k, v) in &dwo.poses {
+            let _ = graph.set_pose(k, dwo.problem.value(*v).0);
+        }
+        for &(pid, v) in &dwo.points {
+            // A point driven to non-positive inverse depth keeps its old value.
+            let _ = graph.set_inverse_depth(pid, *dwo.problem.value(v));
+        }
+        for &(a, b, t) in &plan.edge_updates {
+            graph.set_edge_relative(a, b, t);
+        }
+        self.previous = plan.window.clone();
+    }
+
+    fn stats(plan: &DwoPlan, dwo: &DwoProblem) -> DwoStats {
+        DwoStats {
+            inner_frames: plan.window.inner.len(),
+            outer_frames: plan.window.outer.len(),
+            points: dwo.points.len(),
+            point_constraints: dwo.point_constraints,
+            pose_constraints: plan.constraints.len(),
+            reinitialised: plan.reinitialised.len(),
+            ..DwoStats::default()
+        }
+    }
+
+    /// One double window optimisation around the graph's reference keyframe.
+    pub fn optimise<P: Projector<N> + Clone, const N: usize>(
+        &mut self,
+        graph: &mut SlamGraph<N>,
+        projector: &P,
+    ) -> Result<DwoStats, DwoError> {
+        let t = Instant::now();
+        let plan = self.plan(graph)?;
+        let mut dwo = self.build(graph, &plan, projector)?;
+        let mut stats = Self::stats(&plan, &dwo);
+        stats.time_setup = t.elapsed();
+        self.solve(&mut dwo, &mut stats)?;
+        let t = Instant::now();
+        self.apply(graph, &plan, &dwo);
+        stats.time_apply = t.elapsed();
+        Ok(stats)
+    }
+
+    /// [`optimise`](Self::optimise) on a shared graph: plans and builds under a read lock,
+    /// optimises with no lock held, writes back under a write lock.
+    pub fn optimise_shared<P: Projector<N> + Clone, const N: usize>(
+        &mut self,
+        graph: &SharedGraph<N>,
+        projector: &P,
+    ) -> Result<DwoStats, DwoError> {
+        let t = Instant::now();
+        let (plan, mut dwo) = {
+            let g = graph.read();
+            let plan = self.plan(&g)?;
+            let dwo = self.build(&g, &plan, projector)?;
+            (plan, dwo)
+        };
+        let mut stats = Self::stats(&plan, &dwo);
+        stats.time_setup = t.elapsed();
+        self.solve(&mut dwo, &mut stats)?;
+        let t = Instant::now();
+        self.apply(&mut graph.write(), &plan, &dwo);
+        stats.time_apply = t.elapsed();
+        Ok(stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geom::PinholeCamera;
+    use lsq::numeric::check_jacobians;
+    use nalgebra::Vector2;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn random_sim3(rng: &mut ChaCha8Rng, spread: f64) -> Sim3 {
+        let mut t = SVector::<f64, 7>::from_fn(|_, _| rng.random_range(-spread..spread));
+        t[6] *= 0.3;
+        Sim3::exp(&t)
+    }
+
+    #[test]
+    fn window_factors_have_correct_jacobians() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let cam = PinholeCamera::new(300.0, 310.0, 320.0, 240.0);
+        for _ in 0..20 {
+            let mut values = Values::new();
+            let t_a = random_sim3(&mut rng, 0.1);
+            let t_o = random_sim3(&mut rng, 0.1);
+            let a = values.add(FixedScaleSim3(t_a));
+            let o = values.add(FixedScaleSim3(t_o));
+            let psi = values.add(Vector3::new(
+                rng.random_range(-0.3..0.3),
+                rng.random_range(-0.3..0.3),
+                rng.random_range(0.2..0.6),
+            ));
+            let f = WindowObservation {
+                observer_from_world: o,
+                anchor_from_world: a,
+                inverse_depth_point: psi,
+                measurement: Vector2::new(300.0, 200.0),
+                projector: cam,
+            };
+            let r = check_jacobians(&f, &values, 1e-6).expect("in front");
+            assert!(r.passes(1e-5), "{r:?}");
+            let b = WindowBetween {
+                from: a,
+                to: o,
+                measured: random_sim3(&mut rng, 0.5),
+            };
+            let r = check_jacobians(&b, &values, 1e-6).unwrap();
+            assert!(r.passes(1e-6), "{r:?}");
+        }
+    }
+
+    #[test]
+    fn retraction_keeps_the_scale() {
+        let mut t = FixedScaleSim3(Sim3::new(lie::So3::identity(), Vector3::zeros(), 1.7).unwrap());
+        t.retract(&[0.1, 0.2, -0.3, 0.01, 0.02, 0.03]);
+        assert!((t.0.scale() - 1.7).abs() < 1e-12);
+    }
+}
+
+#[cfg(test)]
+mod graph_tests {
+    use super::*;
+    use crate::graph::SharedGraph;
+    use geom::{PinholeCamera, StereoCamera};
+    use lie::Se3;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+    /// `n` stereo keyframes moving sideways in front of a wall of points, perturbed; every
+    /// point anchored in the first keyframe that sees it; edges by covisibility.
+    fn wall_graph(seed: u64, n: usize) -> (SlamGraph<3>, StereoCamera, Vec<Se3>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let cam = StereoCamera::new(PinholeCamera::new(300.0, 300.0, 320.0, 240.0), 0.1);
+        let truth: Vec<Se3> = (0..n)
+            .map(|k| Se3::from_translation(Vector3::new(-0.2 * k as f64, 0.0, 0.0)))
+            .collect();
+        let points: Vec<Vector3<f64>> = (0..400)
+            .map(|_| {
+                Vector3::new(
+                    rng.random_range(-2.0..0.5 * n as f64 + 2.0),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(2.5..3.5),
+                )
+            })
+            .collect();
+        let mut g = SlamGraph::<3>::new();
+        let mut ids: Vec<Option<PointId>> = vec![None; points.len()];
+        for t in truth.iter() {
+            let noise = SVector::<f64, 7>::from_fn(|i, _| {
+                if i < 6 {
+                    rng.random_range(-0.01..0.01)
+                } else {
+                    0.0
+                }
+            });
+            let kf = g.add_keyframe(Sim3::exp(&noise).compose(&Sim3::from_se3(t)));
+            for (w, p) in points.iter().enumerate() {
+                let x = t.act(p);
+                let Some((z, _)) = Projector::<3>::project(&cam, &x) else {
+                    continue;
+                };
+                if !(0.0..640.0).contains(&z.x)
+                    || !(0.0..480.0).contains(&z.y)
+                    || !(0.0..640.0).contains(&z.z)
+                {
+                    continue;
+                }
+                let z = z + Vector3::from_fn(|_, _| rng.random_range(-0.5..0.5));
+                match ids[w] {
+                    Some(id) => g.add_observation(kf, id, z).unwrap(),
+                    None => {
+                        let psi = Vector3::new(x.x / x.z, x.y / x.z, 1.0 / x.z)
+                            * (1.0 + rng.random_range(-0.05..0.05));
+                        ids[w] = Some(g.add_point(kf, psi, z).unwrap());
+                    }
+                }
+            }
+            crate::registration::register_locally(&mut g, kf, 15, kf.checked_sub(1)).unwrap();
+            g.set_reference(kf).unwrap();
+        }
+        g.check_invariants().unwrap();
+        (g, cam, truth)
+    }
+
+    #[test]
+    fn windows_constraints_and_marginalisation_follow_the_thesis() {
+        let (mut g, cam, _) = wall_graph(1, 30);
+        let mut dwo = DoubleWindowOptimiser::new(DwoParams::new(5, 10, 300.0, 0.5));
+        let stats = dwo.optimise(&mut g, &cam).unwrap();
+        assert_eq!(stats.inner_frames, 5);
+        assert!(stats.outer_frames >= 10);
+        assert!(stats.pose_constraints > 0 && stats.point_constraints > 0);
+        assert!(stats.cost_after < stats.cost_before);
+        g.check_invariants().unwrap();
+        // Inner-window edges are not marginalised; edges with an end outside the inner window
+        // of this optimisation that were inner before keep a stored pose.
+        for &a in &dwo.previous.inner {
+            for &b in &dwo.previous.inner {
+                if let Some(e) = g.edge(a, b) {
+                    assert!(
+                        e.relative.is_none(),
+                        "edge {a}–{b} inside W1 is marginalised"
+                    );
+                }
+            }
+        }
+        // Move the reference back: the old inner window's edges leaving W1 are marginalised.
+        let old_inner = dwo.previous.inner.clone();
+        g.set_reference(3).unwrap();
+        let plan = dwo.plan(&g).unwrap();
+        // Every keyframe entering the window (and not the root) is re-initialised along the
+        // spanning tree (thesis eq. 6.3).
+        for k in &plan.tree.order {
+            if !dwo.previous.contains(*k) && plan.tree.parent[k].is_some() {
+                assert!(
+                    plan.reinitialised.contains(k),
+                    "keyframe {k} entered the window but was not re-initialised"
+                );
+            }
+        }
+        dwo.optimise(&mut g, &cam).unwrap();
+        for &a in &old_inner {
+            for &b in &old_inner {
+                if let Some(e) = g.edge(a, b) {
+                    let now_inner =
+                        dwo.previous.inner.contains(&a) && dwo.previous.inner.contains(&b);
+                    assert_eq!(e.relative.is_none(), now_inner, "edge {a}–{b}");
+                }
+            }
+        }
+        g.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn full_window_optimisation_reduces_the_error_without_a_fixed_origin() {
+        let (mut g, cam, truth) = wall_graph(2, 12);
+        let err = |g: &SlamGraph<3>| {
+            (1..truth.len())
+                .map(|k| {
+                    let est = g
+                        .pose(k)
+                        .unwrap()
+                        .compose(&g.pose(k - 1).unwrap().inverse());
+                    let tru = Sim3::from_se3(&truth[k].compose(&truth[k - 1].inverse()));
+                    (est.translation() - tru.translation()).norm()
+                })
+                .sum::<f64>()
+        };
+        let before = err(&g);
+        let mut params = DwoParams::new(usize::MAX, 0, 300.0, 0.5);
+        params.iterations = 10;
+        let mut dwo = DoubleWindowOptimiser::new(params);
+        dwo.optimise(&mut g, &cam).unwrap();
+        assert!(err(&g) < 0.3 * before, "{} → {}", before, err(&g));
+    }
+
+    #[test]
+    fn tracking_reads_the_graph_while_the_optimiser_runs() {
+        let (g, cam, _) = wall_graph(3, 40);
+        let shared = SharedGraph::new(g);
+        let running = AtomicBool::new(true);
+        let reads_during = AtomicUsize::new(0);
+        let mut params = DwoParams::new(usize::MAX, 0, 300.0, 0.5);
+        params.iterations = 30;
+        let mut dwo = DoubleWindowOptimiser::new(params);
+        std::thread::scope(|s| {
+            let optimiser = s.spawn(|| {
+                let r = dwo.optimise_shared(&shared, &cam);
+                running.store(false, Ordering::SeqCst);
+                r
+            });
+            // The "tracking thread": candidate points of N1 and the reference pose, and a new
+            // keyframe with an observation, all while the optimisation runs.
+            let mut added = false;
+            while running.load(Ordering::SeqCst) {
+                let started = std::time::Instant::now();
+                {
+                    let g = shared.read();
+                    let r = g.reference().unwrap();
+                    let candidates = crate::registration::tracking_candidates(&g, r);
+                    assert!(!candidates.is_empty());
+                    assert!(g.pose(r).is_ok());
+                }
+                assert!(
+                    started.elapsed() < std::time::Duration::from_millis(200),
+                    "a read waited for the optimiser"
+                );
+                if running.load(Ordering::SeqCst) {
+                    reads_during.fetch_add(1, Ordering::SeqCst);
+                }
+                if !added {
+                    let mut g = shared.write();
+                    let r = g.reference().unwrap();
+                    let pose = g.pose(r).unwrap();
+                    let kf = g.add_keyframe(pose);
+                    let p = *g.keyframe(r).unwrap().observations().keys().next().unwrap();
+                    let z = g.keyframe(r).unwrap().observations()[&p];
+                    g.add_observation(kf, p, z).unwrap();
+                    added = true;
+                }
+            }
+            let stats = optimiser.join().unwrap().unwrap();
+            assert!(stats.cost_after < stats.cost_before);
+        });
+        assert!(
+            reads_during.load(Ordering::SeqCst) > 0,
+            "no read overlapped the optimisation"
+        );
+        let g = shared.into_inner();
+        g.check_invariants().unwrap();
+        assert_eq!(g.num_keyframes(), 41);
+    }
+}
