@@ -121,6 +121,22 @@ pub fn run(args: DwoArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let config = RunConfig::for_scenario(scenario, args.seed);
+    println!(
+        "double window optimisation (thesis §6.5.1): {} keyframes, {:?} {}, methods {}, seed {}, output {}",
+        world.camera_from_world.len(),
+        scenario,
+        match sensor {
+            SensorKind::Stereo => "stereo",
+            SensorKind::Mono => "monocular",
+        },
+        methods
+            .iter()
+            .map(|m| m.name())
+            .collect::<Vec<_>>()
+            .join(", "),
+        args.seed,
+        args.out.display()
+    );
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads)
         .build()?;
@@ -394,12 +410,25 @@ fn report(
             mean(|x| x.rmse_both),
             mean(|x| x.rmse_global),
         );
+        // Keyframe ranges the run does not reach print as "—", not NaN.
+        let ms = |t: f64| {
+            if t.is_finite() {
+                format!("{:.2}ms", t * 1e3)
+            } else {
+                "—".to_string()
+            }
+        };
+        let ratio = if (t2 / t1).is_finite() {
+            format!("{:.2}", t2 / t1)
+        } else {
+            "—".to_string()
+        };
         println!(
-            "{:<18} {:>10.2}ms {:>10.2}ms {:>8.2} {:>12.3e} {:>12.3e} {:>12.3e} {:>12.3e}",
+            "{:<18} {:>12} {:>12} {:>8} {:>12.3e} {:>12.3e} {:>12.3e} {:>12.3e}",
             r.method.name(),
-            t1 * 1e3,
-            t2 * 1e3,
-            t2 / t1,
+            ms(t1),
+            ms(t2),
+            ratio,
             inner,
             both,
             global,
