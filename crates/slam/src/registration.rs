@@ -301,3 +301,164 @@ pub fn close_appearance_loop<const N: usize>(
     graph.add_edge(matched, query, Some(query_from_matched))?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geom::{PinholeCamera, StereoCamera};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    const THETA: usize = 20;
+
+    fn params() -> MetricLoopParams {
+        MetricLoopParams {
+            theta: THETA,
+            max_chi2: 7.81,
+            sigma: 1.0,
+            image_size: (640.0, 480.0),
+        }
+    }
+
+    fn camera() -> StereoCamera {
+        // The simulator's stereo rig: f = 300, 640×480, baseline 5 cm.
+        StereoCamera::new(PinholeCamera::new(300.0, 300.0, 320.0, 240.0), 0.05)
+    }
+
+    /// A revisit (thesis Figure 6.7): keyframes 0–4 look at wall A (points anchored in
+    /// keyframe 0 at their true positions, observed by all five), keyframes 5–9 turn away and
+    /// are joined only as a chain, and the reference keyframe 10 comes back to the place of
+    /// keyframe 0 (pose off by `offset` m) joined only to keyframe 9. Returns the graph, the
+    /// true pose of the reference and wall A.
+    fn revisit(offset: f64) -> (SlamGraph<3>, Se3, Vec<(PointId, Vector3<f64>)>) {
+        let cam = camera();
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut g = SlamGraph::<3>::new();
+        let truth: Vec<Se3> = (0..11)
+            .map(|k| match k {
+                0..=4 => Se3::from_translation(Vector3::new(-0.02 * k as f64, 0.0, 0.0)),
+                5..=9 => Se3::exp(&SVector::<f64, 6>::new(
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.3 * k as f64,
+                    0.0,
+                )),
+                _ => Se3::from_translation(Vector3::new(0.01, 0.0, 0.0)),
+            })
+            .collect();
+        for t in &truth[..10] {
+            g.add_keyframe(Sim3::from_se3(t));
+        }
+        // Wall A: 150 points 3 m in front of keyframe 0, all over its image.
+        let mut wall = Vec::new();
+        while wall.len() < 150 {
+            let y = Vector3::new(
+                rng.random_range(-2.5..2.5),
+                rng.random_range(-1.8..1.8),
+                rng.random_range(2.8..3.2),
+            );
+            let zs: Option<Vec<_>> = (0..5)
+                .map(|k| Projector::<3>::project(&cam, &truth[k].act(&y)).map(|(z, _)| z))
+                .collect();
+            let Some(zs) = zs else { continue };
+            let x0 = truth[0].act(&y);
+            let p = g
+                .add_point(0, Vector3::new(x0.x / x0.z, x0.y / x0.z, 1.0 / x0.z), zs[0])
+                .unwrap();
+            for (k, z) in zs.iter().enumerate().skip(1) {
+                g.add_observation(k, p, *z).unwrap();
+            }
+            wall.push((p, y));
+        }
+        for a in 0..5 {
+            for b in a + 1..5 {
+                g.add_edge(a, b, None).unwrap();
+            }
+        }
+        for k in 5..10 {
+            g.add_edge(k - 1, k, None).unwrap();
+        }
+        let t_ref = Se3::from_translation(Vector3::new(offset, 0.0, 0.0)).compose(&truth[10]);
+        let r = g.add_keyframe(Sim3::from_se3(&t_ref));
+        g.add_edge(9, r, None).unwrap();
+        g.set_reference(r).unwrap();
+        (g, truth[10], wall)
+    }
+
+    /// Noise-free measurements of `wall` in the true reference pose, restricted by `keep`.
+    fn measure(
+        truth: &Se3,
+        wall: &[(PointId, Vector3<f64>)],
+        keep: impl Fn(&Vector3<f64>) -> bool,
+    ) -> Vec<(PointId, Vector3<f64>)> {
+        let cam = camera();
+        wall.iter()
+            .filter_map(|(p, y)| {
+                let (z, _) = Projector::<3>::project(&cam, &truth.act(y))?;
+                keep(&z).then_some((*p, z))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn loop_candidates_are_the_points_of_n2_not_seen_from_n1() {
+        let (g, _, wall) = revisit(0.02);
+        assert!(
+            loop_candidates(&g, 10, 5).is_empty(),
+            "N2 of 5 keyframes ends at 6"
+        );
+        let a = loop_candidates(&g, 10, 20);
+        assert_eq!(a.len(), wall.len());
+        assert!(tracking_candidates(&g, 10).is_empty());
+    }
+
+    #[test]
+    fn metric_loop_closure_fires_on_a_revisit_with_well_spread_matches() {
+        let (mut g, truth, wall) = revisit(0.02);
+        let matches = measure(&truth, &wall, |_| true);
+        let closed = close_metric_loops(&mut g, 10, &matches, &camera(), &params()).unwrap();
+        let joined: Vec<KeyframeId> = closed.iter().map(|c| c.keyframe).collect();
+        assert_eq!(joined, vec![0, 1, 2, 3, 4], "{closed:?}");
+        for k in 0..5 {
+            // Marginalised with T_loop·T_k⁻¹, i.e. close to the truth, not to the 2 cm off
+            // reference pose.
+            let rel = g.edge(k, 10).unwrap().relative.unwrap();
+            let expect = Sim3::from_se3(&truth).compose(&g.pose(k).unwrap().inverse());
+            let err = rel.compose(&expect.inverse()).log();
+            assert!(err.norm() < 1e-6, "keyframe {k}: {err:?}");
+        }
+        assert_eq!(g.keyframe(10).unwrap().observations().len(), matches.len());
+    }
+
+    #[test]
+    fn metric_loop_closure_rejects_matches_in_one_image_half_but_keeps_them() {
+        let (mut g, truth, wall) = revisit(0.02);
+        let matches = measure(&truth, &wall, |z| z[0] < 320.0);
+        assert!(matches.len() >= 2 * THETA, "{} matches", matches.len());
+        let closed = close_metric_loops(&mut g, 10, &matches, &camera(), &params()).unwrap();
+        assert!(closed.is_empty(), "{closed:?}");
+        assert!(g.edge(0, 10).is_none());
+        // The verified matches are observations of the reference all the same.
+        assert_eq!(g.keyframe(10).unwrap().observations().len(), matches.len());
+    }
+
+    #[test]
+    fn metric_loop_closure_prunes_matches_a_common_pose_does_not_explain() {
+        let (mut g, truth, wall) = revisit(0.02);
+        let mut matches = measure(&truth, &wall, |_| true);
+        // A quarter of the matches are wrong by 8 px (outside the χ² gate, inside the 10 px
+        // guided search).
+        for (i, (_, z)) in matches.iter_mut().enumerate() {
+            if i % 4 == 0 {
+                z[0] += 8.0;
+                z[2] += 8.0;
+            }
+        }
+        let closed = close_metric_loops(&mut g, 10, &matches, &camera(), &params()).unwrap();
+        assert_eq!(closed.len(), 5, "{closed:?}");
+        let kept = g.keyframe(10).unwrap().observations().len();
+        assert_eq!(kept, matches.len() - matches.len().div_ceil(4));
+    }
+}
