@@ -188,13 +188,18 @@ pub struct AnchoredLinearization<const N: usize> {
 
 /// Linearises an anchored inverse-depth observation (the maths of [`AnchoredObservation`]),
 /// or `None` where it is undefined (inverse depth not positive, point behind the observer).
+/// The poses are SE(3), or Sim(3) perturbed by a rigid `exp(ε)` (the fixed-scale poses of
+/// double window optimisation, thesis §6.2.7): the Jacobians are the same expressions.
 #[inline]
-pub fn linearize_anchored<P: Projector<N>, const N: usize>(
+pub fn linearize_anchored<G, const D: usize, P: Projector<N>, const N: usize>(
     projector: &P,
-    observer_from_world: &Se3,
-    anchor_from_world: &Se3,
+    observer_from_world: &G,
+    anchor_from_world: &G,
     psi: &Vector3<f64>,
-) -> Option<AnchoredLinearization<N>> {
+) -> Option<AnchoredLinearization<N>>
+where
+    G: LieGroup<D, Point = Vector3<f64>, PointMatrix = Matrix3<f64>>,
+{
     if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
         return None;
     }

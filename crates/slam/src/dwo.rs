@@ -34,10 +34,7 @@
 //! builds under a read lock, optimises with no lock held and writes back under a short write
 //! lock.
 
-use crate::ba::{
-    AnchorObservation, MIN_INVERSE_DEPTH, Projector, d_inverse_depth_to_point, d_point_d_pose,
-    inverse_depth_to_point,
-};
+use crate::ba::{AnchorObservation, Projector, inverse_depth_to_point, linearize_anchored};
 use crate::graph::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph};
 use lie::{LieGroup, LogJacobian, Sim3, d_log_from_parts};
 use lsq::{
@@ -100,32 +97,24 @@ impl<P: Projector<N>, const N: usize> Factor for WindowObservation<P, N> {
         residual: &mut [f64],
         jacobians: Option<&mut Jacobians<'_>>,
     ) -> bool {
-        let psi = values.get(self.inverse_depth_point);
-        if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
-            return false;
-        }
-        let t_oa = values
-            .get(self.observer_from_world)
-            .0
-            .compose(&values.get(self.anchor_from_world).0.inverse());
-        let y = inverse_depth_to_point(psi);
-        let x = t_oa.act(&y);
-        let Some((z_hat, dz_dx)) = self.projector.project(&x) else {
+        let Some(lin) = linearize_anchored(
+            &self.projector,
+            &values.get(self.observer_from_world).0,
+            &values.get(self.anchor_from_world).0,
+            values.get(self.inverse_depth_point),
+        ) else {
             return false;
         };
-        residual.copy_from_slice((z_hat - self.measurement).as_slice());
+        residual.copy_from_slice((lin.predicted - self.measurement).as_slice());
         if let Some(j) = jacobians {
             if j.wants(0) {
-                // ∂(exp(δ)·x)/∂δ = [I | −[x]×] for a rigid δ.
-                j.set(0, &(dz_dx * d_point_d_pose(&x)));
+                j.set(0, &lin.d_observer);
             }
-            let s_r = t_oa.d_act_d_point();
             if j.wants(1) {
-                // x = T_o·(exp(δ)·T_a)⁻¹·y = T_oa·exp(−δ)·y.
-                j.set(1, &(-(dz_dx * s_r) * d_point_d_pose(&y)));
+                j.set(1, &lin.d_anchor);
             }
             if j.wants(2) {
-                j.set(2, &(dz_dx * s_r * d_inverse_depth_to_point(psi)));
+                j.set(2, &lin.d_inverse_depth);
             }
         }
         true
