@@ -68,12 +68,25 @@ pub fn forward_turn(radius: f64, angle: f64, n: usize) -> Vec<Se3> {
 /// axis (counter-clockwise seen from above), looking outwards (`outward = true`, thesis §5.4)
 /// or inwards; `loops = 2` is the double loop of thesis §6.5.1.
 pub fn circle(radius: f64, n_per_loop: usize, loops: usize, outward: bool) -> Vec<Se3> {
+    coil(radius, n_per_loop, loops, 0.0, outward)
+}
+
+/// Poses on a circle about the world `z` axis rising by `rise_per_loop` per loop, looking
+/// radially outwards or inwards with image-up along `+z`.
+fn coil(
+    radius: f64,
+    n_per_loop: usize,
+    loops: usize,
+    rise_per_loop: f64,
+    outward: bool,
+) -> Vec<Se3> {
     let up = Vector3::z();
     (0..n_per_loop * loops)
         .map(|k| {
-            let a = TAU * k as f64 / n_per_loop as f64;
-            let centre = Vector3::new(radius * a.cos(), radius * a.sin(), 0.0);
+            let turns = k as f64 / n_per_loop as f64;
+            let a = TAU * turns;
             let radial = Vector3::new(a.cos(), a.sin(), 0.0);
+            let centre = radial * radius + up * (rise_per_loop * turns);
             pose_looking(&centre, &(if outward { radial } else { -radial }), &up)
         })
         .collect()
@@ -94,6 +107,15 @@ pub fn spiral(n: usize, loop_radius: f64, loops: f64, advance_per_loop: f64) -> 
             pose_looking(&(hub + radial * loop_radius), &radial, &up)
         })
         .collect()
+}
+
+/// A helix: `n_per_loop · loops` poses on a circle of radius `radius` about the world `z` axis
+/// (counter-clockwise seen from above) that rises by `rise_per_loop` per loop, looking
+/// outwards with image-up along `+z` — loopy local motion (every loop passes the places of the
+/// previous one) combined with exploration along the axis (thesis §6.5.1, the spiral, when
+/// the camera flies through a tunnel around the axis).
+pub fn helix(radius: f64, n_per_loop: usize, loops: usize, rise_per_loop: f64) -> Vec<Se3> {
+    coil(radius, n_per_loop, loops, rise_per_loop, true)
 }
 
 /// A flight over a sphere of radius `radius` at `altitude` above its surface, `n` poses on a
@@ -171,6 +193,25 @@ mod tests {
         let twice = circle(10.0, 100, 2, false);
         assert_eq!(twice.len(), 200);
         assert!((twice[0].matrix() - twice[100].matrix()).amax() < 1e-9);
+    }
+
+    #[test]
+    fn helix_rises_by_one_step_per_loop_and_looks_outwards() {
+        let poses = helix(0.5, 50, 3, 1.5);
+        assert_eq!(poses.len(), 150);
+        for (k, t) in poses.iter().enumerate() {
+            let c = centre(t);
+            let horizontal = Vector3::new(c.x, c.y, 0.0);
+            assert!((horizontal.norm() - 0.5).abs() < 1e-9);
+            assert!((c.z - 1.5 * k as f64 / 50.0).abs() < 1e-9);
+            assert!(
+                (optical_axis(t) - horizontal / 0.5).norm() < 1e-9,
+                "pose {k}"
+            );
+        }
+        // One loop later: the same view, 1.5 m higher.
+        let (a, b) = (centre(&poses[7]), centre(&poses[57]));
+        assert!((b - a - Vector3::new(0.0, 0.0, 1.5)).norm() < 1e-9);
     }
 
     #[test]

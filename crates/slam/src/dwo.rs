@@ -10,11 +10,14 @@
 //! `v_ji = log(T_ji·T_i·T_j⁻¹)^∨`,
 //!
 //! over the observations of the active points from keyframes of `W1 ∪ W2` and the pose-pose
-//! constraints of the edges of the double window with at least one end in `W2` (the edges
-//! inside `W1` are represented by the points). The edge information is the coarse one of
-//! thesis eq. 6.2, `Λ_ji = w_ij·diag(λ_trans²·I₃, λ_rot²·I₃, λ_rot²)`, with `λ_rot` constant and
-//! `λ_trans` proportional to the parallax `‖t_ji‖/d̄` (`d̄`: median depth of the points seen
-//! from `V_j`). Nothing is fixed: the gauge is left to the damping of Levenberg-Marquardt.
+//! constraints of the edges of the double window. A pose-pose constraint summarises the
+//! points its two keyframes share, as if they were marginalised; the points that are active
+//! are in the optimisation already, so an edge's weight `w_ij` counts only its shared points
+//! that are *not* active, and an edge without such points is no constraint (the edges inside
+//! `W1`, and in practice those between `W1` and `W2`, are represented by the points). The edge
+//! information is the coarse one of thesis eq. 6.2, `Λ_ji = w_ij·diag(λ_trans²·I₃, λ_rot²·I₃,
+//! λ_rot²)`, with both `λ` proportional to the parallax (see [`DwoParams::new`]; `d̄`: median
+//! depth of the points seen from `V_j`). Nothing is fixed: the gauge is left to the damping of Levenberg-Marquardt.
 //!
 //! Before optimising, keyframes that newly entered the double window are re-initialised along
 //! the BFS spanning tree rooted at `V_ref` (thesis eq. 6.3), `T_j = T_j,parent·T_parent`, and
@@ -186,23 +189,42 @@ pub struct DwoParams {
     pub fix_outer: bool,
     /// Pixel noise σ of the measurements (information `I/σ²`).
     pub sigma: f64,
-    /// `λ_rot` of thesis eq. 6.2 (per shared point; 1/rad).
-    pub lambda_rot: f64,
-    /// `λ_trans = lambda_trans_per_parallax · max(‖t_ji‖/d̄, min_parallax)` (thesis eq. 6.2).
-    pub lambda_trans_per_parallax: f64,
-    /// Floor of the parallax in `λ_trans`, so that a constraint without translation still
-    /// constrains it a little.
+    /// Angular precision of one measured point, `f/σ` (1/rad): the scale of `λ_rot` and
+    /// `λ_trans` of thesis eq. 6.2 (see [`DwoParams::new`]).
+    pub angular_precision: f64,
+    /// Stereo baseline in map units (0 for a monocular camera): the parallax a single
+    /// keyframe has on its points.
+    pub baseline: f64,
+    /// Floor of the parallax, so that a constraint between keyframes without translation
+    /// (monocular) still constrains them a little.
     pub min_parallax: f64,
     /// Robust kernel of the reprojection errors (in units of σ).
     pub kernel: Option<RobustKernel>,
 }
 
 impl DwoParams {
-    /// Windows `M1 = inner`, `M2 = outer` for a camera of focal length `focal` (pixels) and
-    /// pixel noise `sigma`: `λ_rot = f/σ` — the angular precision of one measured point, so
-    /// that an edge of weight `w` is worth the rotation information of its `w` shared points —
-    /// and `λ_trans = (f/σ)·‖t_ji‖/d̄` (proportional to the parallax, thesis eq. 6.2); three
-    /// joint iterations (thesis §6.5.1) after two structure-only ones.
+    /// Windows `M1 = inner`, `M2 = outer` for a monocular camera of focal length `focal`
+    /// (pixels) and pixel noise `sigma` (for stereo set [`DwoParams::baseline`], see
+    /// [`DwoParams::with_baseline`]); three joint iterations (thesis §6.5.1) after two
+    /// structure-only ones.
+    ///
+    /// **The coarse edge information** (thesis eq. 6.2), per shared point of an edge `ij`
+    /// whose keyframe `V_j` sees its points at median depth `d̄`:
+    ///
+    /// `parallax = max(‖t_ji‖, baseline)/d̄`, `λ_rot = (f/σ)·parallax`, `λ_trans = λ_rot/d̄`.
+    ///
+    /// A diagonal information must stand for the *marginal* precision of each component, not
+    /// the conditional one: a rotation `δθ` about an axis across the optical axis moves the
+    /// points by `d̄·δθ` in the image plane, which a lateral translation `d̄·δθ` undoes, so the
+    /// two are told apart only through the points' depths, known to `d̄²σ/(f·B)` from a
+    /// baseline `B` (the stereo baseline, or the motion between the two keyframes). Over a
+    /// lever arm of about `d̄` (the field of view is about 90°) this gives a rotation
+    /// precision of `(f/σ)·B/d̄` per point, and translation precision `1/d̄` of it — λ_trans
+    /// proportional to the parallax `B/d̄`, as the thesis prescribes. The thesis keeps
+    /// `λ_rot` constant and gives no values; the conditional value `λ_rot = f/σ` (what one
+    /// point would give if the translation were known) is `d̄/B` ≈ 40× too confident for
+    /// stereo at 2 m with a 5 cm baseline and, measured on the simulated spiral, pulled the
+    /// inner window towards stale relative poses (inner RMSE 2.8× BA's; docs/experiments/dwo.md).
     pub fn new(inner: usize, outer: usize, focal: f64, sigma: f64) -> Self {
         DwoParams {
             inner,
@@ -211,11 +233,26 @@ impl DwoParams {
             structure_iterations: 2,
             fix_outer: false,
             sigma,
-            lambda_rot: focal / sigma,
-            lambda_trans_per_parallax: focal / sigma,
+            angular_precision: focal / sigma,
+            baseline: 0.0,
             min_parallax: 1e-3,
             kernel: None,
         }
+    }
+
+    /// The same with the stereo baseline `baseline` (map units).
+    pub fn with_baseline(mut self, baseline: f64) -> Self {
+        self.baseline = baseline;
+        self
+    }
+
+    /// `(λ_trans², λ_rot²)` per shared point for a relative pose with translation
+    /// `translation` (map units) between keyframes whose points lie at median depth `depth`.
+    pub fn edge_precision(&self, translation: f64, depth: f64) -> (f64, f64) {
+        let parallax = (translation.max(self.baseline) / depth).max(self.min_parallax);
+        let lambda_rot = self.angular_precision * parallax;
+        let lambda_trans = lambda_rot / depth;
+        (lambda_trans * lambda_trans, lambda_rot * lambda_rot)
     }
 }
 
@@ -496,7 +533,7 @@ impl DoubleWindowOptimiser {
         }
         let updated: BTreeMap<(KeyframeId, KeyframeId), Option<Sim3>> =
             edge_updates.iter().map(|&(a, b, t)| ((a, b), t)).collect();
-        // Pose-pose constraints: edges of the double window with an end in W2.
+        // Pose-pose constraints: edges of the double window with points that are not active.
         let mut depth_cache = BTreeMap::new();
         let mut constraints = Vec::new();
         let members: Vec<KeyframeId> = window.inner.iter().chain(&window.outer).copied().collect();
@@ -506,6 +543,30 @@ impl DoubleWindowOptimiser {
                     || !window.contains(b)
                     || (window.inner.contains(&a) && window.inner.contains(&b))
                 {
+                    continue;
+                }
+                // A pose-pose constraint stands for the points of the edge that are *not* in
+                // the optimisation (it summarises them, as if they were marginalised): its
+                // weight is the number of shared points that are not active. Edges with an
+                // end in W1 share only active points (all points visible from W1 are), so,
+                // like the edges inside W1, they are represented by the points themselves;
+                // counting them twice would hold the keyframes at a stale relative pose.
+                let (kf_a, kf_b) = (
+                    graph.keyframe(a).expect("exists"),
+                    graph.keyframe(b).expect("exists"),
+                );
+                // A point seen by `k` keyframes holds `k − 1` independent relative poses but is
+                // shared by `k(k−1)/2` edges, so it counts `2/k` in each (thesis §6.2.3: a
+                // landmark marginalised out of `k` frames is one hyper-edge, not `k(k−1)/2`
+                // independent binary ones).
+                let unrepresented: f64 = kf_a
+                    .observations()
+                    .keys()
+                    .filter(|pid| kf_b.observations().contains_key(pid) && !points.contains(pid))
+                    .filter_map(|pid| graph.point(*pid))
+                    .map(|pt| 2.0 / pt.observers().len().max(2) as f64)
+                    .sum();
+                if unrepresented == 0.0 {
                     continue;
                 }
                 let relative = match updated.get(&(a, b)) {
@@ -518,12 +579,10 @@ impl DoubleWindowOptimiser {
                 let depth = *depth_cache
                     .entry(b)
                     .or_insert_with(|| median_depth(graph, b, &initial_poses));
-                let parallax = (relative.translation().norm() / (depth * relative.scale()))
-                    .max(p.min_parallax);
-                let w = e.weight.max(1) as f64;
-                let lt = p.lambda_trans_per_parallax * parallax;
-                let lr = p.lambda_rot;
-                let (t2, r2) = (w * lt * lt, w * lr * lr);
+                let w = unrepresented;
+                let (lt2, lr2) =
+                    p.edge_precision(relative.translation().norm() / relative.scale(), depth);
+                let (t2, r2) = (w * lt2, w * lr2);
                 constraints.push(PoseConstraint {
                     from: a,
                     to: b,

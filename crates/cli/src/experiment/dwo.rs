@@ -16,8 +16,12 @@ use std::path::{Path, PathBuf};
 /// The scenario.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum ScenarioArg {
-    /// 500 keyframes on a planar coil along a corridor (Figures 6.9–6.10).
+    /// 500 keyframes on a helix through a tunnel, every place seen on two successive loops:
+    /// loopy motion with exploration (Figures 6.9–6.10).
     Spiral,
+    /// 500 keyframes on a planar coil in a small room, all of it in view from the first loop:
+    /// loopy browsing without exploration.
+    Room,
     /// Two loops of 150 keyframes on a 40 m circle, monocular scale drift (Figures 6.11–6.12).
     DoubleLoop,
 }
@@ -89,10 +93,13 @@ pub fn run(args: DwoArgs) -> Result<()> {
     anyhow::ensure!(args.threads >= 1, "--threads must be at least 1");
     let scenario = match args.scenario {
         ScenarioArg::Spiral => Scenario::Spiral,
+        ScenarioArg::Room => Scenario::Room,
         ScenarioArg::DoubleLoop => Scenario::DoubleLoop,
     };
     let sensor = match (args.sensor, scenario) {
-        (Some(SensorArg::Stereo), _) | (None, Scenario::Spiral) => SensorKind::Stereo,
+        (Some(SensorArg::Stereo), _) | (None, Scenario::Spiral | Scenario::Room) => {
+            SensorKind::Stereo
+        }
         (Some(SensorArg::Mono), _) | (None, Scenario::DoubleLoop) => SensorKind::Mono,
     };
     let methods: Vec<Method> = match &args.methods {
@@ -105,6 +112,7 @@ pub fn run(args: DwoArgs) -> Result<()> {
     anyhow::ensure!(!methods.is_empty(), "--methods is empty");
     let world = match (scenario, args.keyframes) {
         (Scenario::Spiral, n) => dwo::spiral_world(args.seed, n.unwrap_or(500)),
+        (Scenario::Room, n) => dwo::room_world(args.seed, n.unwrap_or(500)),
         (Scenario::DoubleLoop, n) => {
             let per_loop = n.map(|n| n / 2).unwrap_or(150);
             anyhow::ensure!(
@@ -266,6 +274,7 @@ fn report(
     }
     let name = match scenario {
         Scenario::Spiral => "spiral",
+        Scenario::Room => "room",
         Scenario::DoubleLoop => "double loop",
     };
     let s = if mono { "mono" } else { "stereo" };
@@ -347,15 +356,14 @@ fn report(
             &series,
         )?;
     }
-    // Top view of the final trajectories, aligned by the first keyframe.
+    // Top view of the final trajectories (side view of the helix), Sim(3)-aligned.
     {
+        let side = scenario == Scenario::Spiral;
+        let view = move |c: nalgebra::Vector3<f64>| if side { (c.x, c.z) } else { (c.x, c.y) };
         let truth: Vec<(f64, f64)> = world
             .camera_from_world
             .iter()
-            .map(|t| {
-                let c = sim::trajectory::centre(t);
-                (c.x, c.y)
-            })
+            .map(|t| view(sim::trajectory::centre(t)))
             .collect();
         let mut series = vec![Series {
             label: "true".into(),
@@ -364,7 +372,10 @@ fn report(
             style: Style::Line,
         }];
         for (i, r) in results.iter().enumerate() {
-            let pts = aligned_centres(world, &r.camera_from_world);
+            let pts = aligned_centres(world, &r.camera_from_world)
+                .into_iter()
+                .map(view)
+                .collect();
             series.push(Series {
                 label: r.method.name().into(),
                 points: pts,
@@ -372,13 +383,23 @@ fn report(
                 style: Style::Line,
             });
         }
-        let t = format!("{name} ({s}): final keyframe centres, top view (Sim(3)-aligned)");
+        let (t, y_label) = if side {
+            (
+                format!("{name} ({s}): final keyframe centres, side view (Sim(3)-aligned)"),
+                "z (m)",
+            )
+        } else {
+            (
+                format!("{name} ({s}): final keyframe centres, top view (Sim(3)-aligned)"),
+                "y (m)",
+            )
+        };
         plot::plot(
             &out.join("trajectory.png"),
             &Figure {
                 title: &t,
                 x_label: "x (m)",
-                y_label: "y (m)",
+                y_label,
                 equal_aspect: true,
                 log_y: false,
             },
@@ -470,7 +491,7 @@ fn report(
         methods.insert(r.method.name().to_string(), entry);
     }
     let summary = json!({
-        "scenario": match scenario { Scenario::Spiral => "spiral", Scenario::DoubleLoop => "double-loop" },
+        "scenario": match scenario { Scenario::Spiral => "spiral", Scenario::Room => "room", Scenario::DoubleLoop => "double-loop" },
         "sensor": if mono { "mono" } else { "stereo" },
         "keyframes": n,
         "points": world.points.len(),
@@ -504,8 +525,8 @@ fn nan_null(x: f64) -> serde_json::Value {
     }
 }
 
-/// Keyframe centres of an estimate, Sim(3)-aligned to the truth (for the top view).
-fn aligned_centres(world: &World, estimate: &[lie::Sim3]) -> Vec<(f64, f64)> {
+/// Keyframe centres of an estimate, Sim(3)-aligned to the truth.
+fn aligned_centres(world: &World, estimate: &[lie::Sim3]) -> Vec<nalgebra::Vector3<f64>> {
     use lie::LieGroup;
     let est: Vec<nalgebra::Vector3<f64>> = estimate
         .iter()
@@ -516,11 +537,10 @@ fn aligned_centres(world: &World, estimate: &[lie::Sim3]) -> Vec<(f64, f64)> {
         .iter()
         .map(sim::trajectory::centre)
         .collect();
-    let aligned = match geom::align::align_sim3(&tru, &est) {
+    match geom::align::align_sim3(&tru, &est) {
         Ok(s) => est.iter().map(|c| s.act(c)).collect(),
         Err(_) => est,
-    };
-    aligned.iter().map(|c| (c.x, c.y)).collect()
+    }
 }
 
 struct ScaleStats {
