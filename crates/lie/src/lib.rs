@@ -220,6 +220,35 @@ pub fn d_log_from_parts<G: LieGroup<DOF>, const DOF: usize>(
     }
 }
 
+/// The left factors `(M(d), M(−d))` of the log Jacobians, `J_A^B = M(d)·Ad_A` (see
+/// [`LieGroup::d_log_left`]): with `D = ∂[y, d]/∂y`, `M = I` ([`LogJacobian::Cbh1`]),
+/// `I + ½D` ([`LogJacobian::Cbh2`]), `I + ½D + D²/12` ([`LogJacobian::Cbh3`], thesis eq. 5.22)
+/// or `J_l(d)⁻¹` ([`LogJacobian::Exact`]).
+///
+/// Both signs come together because a relative-pose residual `d = log(A·X·Y⁻¹)` needs both:
+/// `∂d/∂X = M(d)·Ad_A` and `∂d/∂Y = −M(−d)` (thesis eq. 5.18–5.21). `D` is linear in `d`, so
+/// the CBH forms share `D` and `D²` (`M(±d) = I ± ½D + D²/12`): one matrix product for both
+/// instead of one per term and sign.
+pub fn log_jacobian_factors<G: LieGroup<DOF>, const DOF: usize>(
+    d: &SVector<f64, DOF>,
+    method: LogJacobian,
+) -> (SMatrix<f64, DOF, DOF>, SMatrix<f64, DOF, DOF>) {
+    let identity = SMatrix::<f64, DOF, DOF>::identity();
+    match method {
+        LogJacobian::Cbh1 => (identity, identity),
+        LogJacobian::Cbh2 | LogJacobian::Cbh3 => {
+            let d_bracket = G::d_lie_bracket(d);
+            let mut even = identity;
+            if method == LogJacobian::Cbh3 {
+                even += (d_bracket * d_bracket) * (1.0 / 12.0);
+            }
+            let half = d_bracket * 0.5;
+            (even + half, even - half)
+        }
+        LogJacobian::Exact => (G::left_jacobian_inverse(d), G::left_jacobian_inverse(&(-d))),
+    }
+}
+
 /// `a * b` for composition and `g * p` for the action on a point, by value and by reference,
 /// for a group implementing [`LieGroup`].
 #[macro_export]
@@ -288,4 +317,42 @@ pub fn unskew(m: &nalgebra::Matrix3<f64>) -> nalgebra::Vector3<f64> {
         0.5 * (m[(0, 2)] - m[(2, 0)]),
         0.5 * (m[(1, 0)] - m[(0, 1)]),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// `log_jacobian_factors` gives the same log Jacobians as `d_log_from_parts`: `M(d)·Ad_A`
+    /// and `M(−d) = ∂ log(I·exp(ε)·exp(−d))/∂ε`, for every method and group with a bracket.
+    fn factors_match<G: LieGroup<D>, const D: usize>(seed: u64) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        for _ in 0..20 {
+            let mut tangent = || SVector::<f64, D>::from_fn(|_, _| rng.random_range(-0.7..0.7));
+            let d = tangent();
+            let ad = G::exp(&tangent()).adjoint();
+            let identity = SMatrix::<f64, D, D>::identity();
+            for method in [
+                LogJacobian::Cbh1,
+                LogJacobian::Cbh2,
+                LogJacobian::Cbh3,
+                LogJacobian::Exact,
+            ] {
+                let (plus, minus) = log_jacobian_factors::<G, D>(&d, method);
+                let ref_plus = d_log_from_parts::<G, D>(&d, &ad, method);
+                let ref_minus = d_log_from_parts::<G, D>(&(-d), &identity, method);
+                assert!((plus * ad - ref_plus).abs().max() < 1e-12, "{method:?}");
+                assert!((minus - ref_minus).abs().max() < 1e-12, "{method:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn log_jacobian_factors_match_the_log_jacobians() {
+        factors_match::<Se2, 3>(1);
+        factors_match::<Se3, 6>(2);
+        factors_match::<Sim3, 7>(3);
+    }
 }

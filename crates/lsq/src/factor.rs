@@ -179,6 +179,24 @@ impl Information {
                     .clone()
                     .cholesky()
                     .ok_or_else(|| bad("Cholesky factorisation failed".into()))?;
+                // A diagonal Λ (common: g2o files and unit information write full matrices
+                // with zero off-diagonals) is whitened by the cheaper variants. Their `W` is
+                // the same as the Cholesky factor's (√Λ_ii on the diagonal, exact zeros off
+                // it), so the whitened values are bit for bit those of the full product.
+                let diagonal = (0..dim).all(|c| (0..dim).all(|r| r == c || m[(r, c)] == 0.0));
+                if diagonal {
+                    let first = m[(0, 0)];
+                    if (0..dim).all(|k| m[(k, k)] == first) {
+                        return Ok(if first == 1.0 {
+                            Whitening::Identity
+                        } else {
+                            Whitening::Scale(first.sqrt())
+                        });
+                    }
+                    let offset = pool.len();
+                    pool.extend((0..dim).map(|k| m[(k, k)].sqrt()));
+                    return Ok(Whitening::Diagonal(offset));
+                }
                 let w = chol.l().transpose();
                 let offset = pool.len();
                 pool.extend_from_slice(w.as_slice());
@@ -201,16 +219,94 @@ impl Whitening {
                 }
             }
             Whitening::Full(o) => {
-                // W is upper triangular (column-major): (W·x)_i = Σ_{j ≥ i} W_ij x_j.
                 let w = &pool[o..o + dim * dim];
-                for i in 0..dim {
-                    let mut acc = 0.0;
-                    for j in i..dim {
-                        acc += w[j * dim + i] * x[j];
+                match dim {
+                    3 => upper_triangular_times::<3>(w, x),
+                    6 => upper_triangular_times::<6>(w, x),
+                    7 => upper_triangular_times::<7>(w, x),
+                    _ => {
+                        for i in 0..dim {
+                            let mut acc = 0.0;
+                            for j in i..dim {
+                                acc += w[j * dim + i] * x[j];
+                            }
+                            x[i] = acc;
+                        }
                     }
-                    x[i] = acc;
                 }
             }
+        }
+    }
+}
+
+/// `x ← W·x` for an upper-triangular `W` (column-major `D×D`): `(W·x)_i = Σ_{j ≥ i} W_ij x_j`,
+/// with constant bounds so the loops unroll (the pose sizes of pose graphs and BA).
+#[inline(always)]
+fn upper_triangular_times<const D: usize>(w: &[f64], x: &mut [f64]) {
+    let w = &w[..D * D];
+    let x: &mut [f64; D] = x.try_into().expect("vector of length D");
+    for i in 0..D {
+        let mut acc = 0.0;
+        for j in i..D {
+            acc += w[j * D + i] * x[j];
+        }
+        x[i] = acc;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A full information matrix that happens to be diagonal is whitened by the cheap
+    /// variants, with the same values as the Cholesky factor's product; a non-diagonal one
+    /// keeps the full product.
+    #[test]
+    fn diagonal_full_information_is_whitened_like_the_full_product() {
+        let x = [0.3, -1.2, 2.5, 0.7, -0.4, 1.1, 0.9];
+        let cases = [
+            (DMatrix::<f64>::identity(7, 7), "identity"),
+            (DMatrix::<f64>::identity(7, 7) * 4.0, "isotropic"),
+            (
+                DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![
+                    1.0, 4.0, 9.0, 0.25, 2.0, 3.0, 5.0,
+                ])),
+                "diagonal",
+            ),
+        ];
+        for (m, name) in cases {
+            let mut pool = Vec::new();
+            let w = Information::Full(m.clone())
+                .whitening(7, &mut pool)
+                .unwrap();
+            match (name, &w) {
+                ("identity", Whitening::Identity)
+                | ("isotropic", Whitening::Scale(_))
+                | ("diagonal", Whitening::Diagonal(_)) => {}
+                _ => panic!("{name}: {w:?}"),
+            }
+            let mut y = x;
+            w.apply(&pool, 7, &mut y);
+            let expected =
+                m.cholesky().unwrap().l().transpose() * nalgebra::DVector::from_column_slice(&x);
+            for k in 0..7 {
+                assert_eq!(y[k], expected[k], "{name} entry {k}");
+            }
+        }
+        let mut m = DMatrix::<f64>::identity(7, 7) * 3.0;
+        m[(1, 4)] = 0.5;
+        m[(4, 1)] = 0.5;
+        let mut pool = Vec::new();
+        let w = Information::Full(m.clone())
+            .whitening(7, &mut pool)
+            .unwrap();
+        assert!(matches!(w, Whitening::Full(_)));
+        let mut y = x;
+        w.apply(&pool, 7, &mut y);
+        let expected =
+            m.cholesky().unwrap().l().transpose() * nalgebra::DVector::from_column_slice(&x);
+        for k in 0..7 {
+            assert!((y[k] - expected[k]).abs() < 1e-14);
         }
     }
 }

@@ -15,7 +15,7 @@
 //! (`J_l(d)⁻¹·Ad_{T_ji}` and `−J_l(−d)⁻¹`) or by the CBH approximations of
 //! [`lie::LogJacobian`].
 
-use lie::{LieGroup, LogJacobian, d_log_from_parts};
+use lie::{LieGroup, LogJacobian, log_jacobian_factors};
 use lsq::{Factor, Jacobians, Manifold, Values, Var, VarKey};
 use nalgebra::SMatrix;
 
@@ -67,16 +67,18 @@ impl<G: LieGroup<D> + Manifold, const D: usize> Factor for BetweenFactor<G, D> {
         let d = self.residual(values.get(self.from), values.get(self.to));
         residual.copy_from_slice(d.as_slice());
         if let Some(j) = jacobians {
+            // ∂d/∂ε_i = M(d)·Ad_{T_ji}, ∂d/∂ε_j = −M(−d), sharing the CBH terms.
+            let (m_plus, m_minus) = log_jacobian_factors::<G, D>(&d, self.jacobian);
             if j.wants(0) {
                 let ad = self.measured.adjoint();
-                j.set(0, &d_log_from_parts::<G, D>(&d, &ad, self.jacobian));
+                if self.jacobian == LogJacobian::Cbh1 {
+                    j.set(0, &ad);
+                } else {
+                    j.set(0, &(m_plus * ad));
+                }
             }
             if j.wants(1) {
-                let identity = SMatrix::<f64, D, D>::identity();
-                j.set(
-                    1,
-                    &(-d_log_from_parts::<G, D>(&(-d), &identity, self.jacobian)),
-                );
+                j.set(1, &(-m_minus));
             }
         }
         true
