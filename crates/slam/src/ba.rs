@@ -115,11 +115,13 @@ pub const MIN_INVERSE_DEPTH: f64 = 1e-12;
 
 /// An anchored inverse-depth point observed from another pose (thesis eq. 4.17, B.19–B.22):
 /// `r = ẑ(T_lw·T_aw⁻¹·Π(ψ)) − z`, ternary in the observer `T_lw`, the anchor `T_aw` and `ψ`.
-pub struct AnchoredObservation<P, const N: usize> {
+/// The poses are `Se3` by default, or any [`AnchoredPose`] (the fixed-scale Sim(3) poses of
+/// double window optimisation).
+pub struct AnchoredObservation<P, const N: usize, T = Se3> {
     /// The observer's `camera_from_world` (`T_lw`).
-    pub observer_from_world: Var<Se3>,
+    pub observer_from_world: Var<T>,
     /// The anchor's `camera_from_world` (`T_aw`).
-    pub anchor_from_world: Var<Se3>,
+    pub anchor_from_world: Var<T>,
     /// `ψ = (u, v, q)` in the anchor frame.
     pub inverse_depth_point: Var<Vector3<f64>>,
     /// The measurement `z`.
@@ -128,7 +130,31 @@ pub struct AnchoredObservation<P, const N: usize> {
     pub projector: P,
 }
 
-impl<P: Projector<N>, const N: usize> Factor for AnchoredObservation<P, N> {
+/// A pose variable an [`AnchoredObservation`] can be linearised at: updated by rigid left
+/// increments `exp(ε)·T`, `ε ∈ R⁶`, so that [`linearize_anchored`] gives its Jacobians.
+pub trait AnchoredPose: Manifold {
+    /// [`linearize_anchored`] at these poses.
+    fn linearize_observation<P: Projector<N>, const N: usize>(
+        projector: &P,
+        observer_from_world: &Self,
+        anchor_from_world: &Self,
+        psi: &Vector3<f64>,
+    ) -> Option<AnchoredLinearization<N>>;
+}
+
+impl AnchoredPose for Se3 {
+    #[inline]
+    fn linearize_observation<P: Projector<N>, const N: usize>(
+        projector: &P,
+        observer_from_world: &Se3,
+        anchor_from_world: &Se3,
+        psi: &Vector3<f64>,
+    ) -> Option<AnchoredLinearization<N>> {
+        linearize_anchored(projector, observer_from_world, anchor_from_world, psi)
+    }
+}
+
+impl<P: Projector<N>, const N: usize, T: AnchoredPose> Factor for AnchoredObservation<P, N, T> {
     fn residual_dim(&self) -> usize {
         N
     }
@@ -147,7 +173,7 @@ impl<P: Projector<N>, const N: usize> Factor for AnchoredObservation<P, N> {
         residual: &mut [f64],
         jacobians: Option<&mut Jacobians<'_>>,
     ) -> bool {
-        let Some(lin) = linearize_anchored(
+        let Some(lin) = T::linearize_observation(
             &self.projector,
             values.get(self.observer_from_world),
             values.get(self.anchor_from_world),
@@ -607,6 +633,22 @@ pub struct Observation<const N: usize> {
     pub point: usize,
     /// The measurement.
     pub measurement: SVector<f64, N>,
+}
+
+impl<const N: usize> Observation<N> {
+    /// The observations of one pose (index 0) seeing points `0, 1, …` in the order of
+    /// `measurements` (the input of motion-only BA).
+    pub fn of_one_pose(measurements: impl IntoIterator<Item = SVector<f64, N>>) -> Vec<Self> {
+        measurements
+            .into_iter()
+            .enumerate()
+            .map(|(point, measurement)| Observation {
+                pose: 0,
+                point,
+                measurement,
+            })
+            .collect()
+    }
 }
 
 /// Why a bundle adjustment could not be built.

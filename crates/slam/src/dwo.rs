@@ -37,14 +37,17 @@
 //! builds under a read lock, optimises with no lock held and writes back under a short write
 //! lock.
 
-use crate::ba::{AnchorObservation, Projector, inverse_depth_to_point, linearize_anchored};
+use crate::ba::{
+    AnchorObservation, AnchoredLinearization, AnchoredObservation, AnchoredPose, Projector,
+    inverse_depth_to_point, linearize_anchored,
+};
 use crate::graph::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph};
-use lie::{LieGroup, LogJacobian, Sim3, d_log_from_parts};
+use lie::{LieGroup, LogJacobian, Sim3, log_jacobian_factors};
 use lsq::{
     Factor, Information, Jacobians, Manifold, Problem, RobustKernel, SolverOptions, Values, Var,
     VarKey,
 };
-use nalgebra::{SMatrix, SVector, Vector3};
+use nalgebra::{SVector, Vector3};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
@@ -65,62 +68,15 @@ impl Manifold for FixedScaleSim3 {
     }
 }
 
-/// An anchored inverse-depth point observed from a keyframe other than its anchor (thesis
-/// eq. 6.4, B.19–B.22): `r = ẑ(T_o·T_a⁻¹·Π(ψ)) − z`, ternary in the observer `T_o`, the anchor
-/// `T_a` (both [`FixedScaleSim3`]) and `ψ`.
-pub struct WindowObservation<P, const N: usize> {
-    /// The observer's `camera_from_world`.
-    pub observer_from_world: Var<FixedScaleSim3>,
-    /// The anchor's `camera_from_world`.
-    pub anchor_from_world: Var<FixedScaleSim3>,
-    /// `ψ` in the anchor frame.
-    pub inverse_depth_point: Var<Vector3<f64>>,
-    /// The measurement `z`.
-    pub measurement: SVector<f64, N>,
-    /// The measurement model.
-    pub projector: P,
-}
-
-impl<P: Projector<N>, const N: usize> Factor for WindowObservation<P, N> {
-    fn residual_dim(&self) -> usize {
-        N
-    }
-
-    fn variables(&self) -> Vec<VarKey> {
-        vec![
-            self.observer_from_world.key(),
-            self.anchor_from_world.key(),
-            self.inverse_depth_point.key(),
-        ]
-    }
-
-    fn evaluate(
-        &self,
-        values: &Values,
-        residual: &mut [f64],
-        jacobians: Option<&mut Jacobians<'_>>,
-    ) -> bool {
-        let Some(lin) = linearize_anchored(
-            &self.projector,
-            &values.get(self.observer_from_world).0,
-            &values.get(self.anchor_from_world).0,
-            values.get(self.inverse_depth_point),
-        ) else {
-            return false;
-        };
-        residual.copy_from_slice((lin.predicted - self.measurement).as_slice());
-        if let Some(j) = jacobians {
-            if j.wants(0) {
-                j.set(0, &lin.d_observer);
-            }
-            if j.wants(1) {
-                j.set(1, &lin.d_anchor);
-            }
-            if j.wants(2) {
-                j.set(2, &lin.d_inverse_depth);
-            }
-        }
-        true
+impl AnchoredPose for FixedScaleSim3 {
+    #[inline]
+    fn linearize_observation<P: Projector<N>, const N: usize>(
+        projector: &P,
+        observer_from_world: &Self,
+        anchor_from_world: &Self,
+        psi: &Vector3<f64>,
+    ) -> Option<AnchoredLinearization<N>> {
+        linearize_anchored(projector, &observer_from_world.0, &anchor_from_world.0, psi)
     }
 }
 
@@ -156,18 +112,14 @@ impl Factor for WindowBetween {
         let d = self.measured.compose(&t_i).compose(&t_j.inverse()).log();
         residual.copy_from_slice(d.as_slice());
         if let Some(j) = jacobians {
+            // BetweenFactor's ∂d/∂ε_i = M(d)·Ad_{T_ji}, ∂d/∂ε_j = −M(−d), rigid columns only.
+            let (m_plus, m_minus) = log_jacobian_factors::<Sim3, 7>(&d, LogJacobian::Exact);
             if j.wants(0) {
-                let full =
-                    d_log_from_parts::<Sim3, 7>(&d, &self.measured.adjoint(), LogJacobian::Exact);
+                let full = m_plus * self.measured.adjoint();
                 j.set(0, &full.fixed_columns::<6>(0).into_owned());
             }
             if j.wants(1) {
-                let full = -d_log_from_parts::<Sim3, 7>(
-                    &(-d),
-                    &SMatrix::<f64, 7, 7>::identity(),
-                    LogJacobian::Exact,
-                );
-                j.set(1, &full.fixed_columns::<6>(0).into_owned());
+                j.set(1, &(-m_minus.fixed_columns::<6>(0)).into_owned());
             }
         }
         true
@@ -643,7 +595,7 @@ impl DoubleWindowOptimiser {
                     )?;
                 } else {
                     problem.add_factor(
-                        WindowObservation {
+                        AnchoredObservation {
                             observer_from_world: observer,
                             anchor_from_world: poses[&pt.anchor],
                             inverse_depth_point: psi,
@@ -827,7 +779,7 @@ mod tests {
                 rng.random_range(-0.3..0.3),
                 rng.random_range(0.2..0.6),
             ));
-            let f = WindowObservation {
+            let f = AnchoredObservation {
                 observer_from_world: o,
                 anchor_from_world: a,
                 inverse_depth_point: psi,

@@ -845,15 +845,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
         if points.len() != obs.len() || obs.is_empty() {
             return *initial;
         }
-        let observations: Vec<Observation<N>> = obs
-            .iter()
-            .enumerate()
-            .map(|(k, (_, z))| Observation {
-                pose: 0,
-                point: k,
-                measurement: *z,
-            })
-            .collect();
+        let observations = Observation::of_one_pose(obs.iter().map(|(_, z)| *z));
         motion_only(
             &self.camera,
             initial,

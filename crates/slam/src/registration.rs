@@ -90,15 +90,7 @@ pub fn estimate_pose<P: Projector<N> + Clone, const N: usize>(
         .iter()
         .map(|(p, _)| graph.point_in_frame(*p, frame))
         .collect::<Result<_, _>>()?;
-    let observations: Vec<Observation<N>> = matches
-        .iter()
-        .enumerate()
-        .map(|(k, (_, z))| Observation {
-            pose: 0,
-            point: k,
-            measurement: *z,
-        })
-        .collect();
+    let observations = Observation::of_one_pose(matches.iter().map(|(_, z)| *z));
     // Rigid part of T·T_frame⁻¹; the scale of the initial guess relative to the frame is 1 by
     // construction of every caller (new keyframes inherit their reference's scale).
     let relative = initial.compose(&t_frame.inverse()).rigid_part();
