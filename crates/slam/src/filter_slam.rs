@@ -123,12 +123,29 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
     }
 
     /// One keyframe of thesis Alg. 5: `previous` and `frame` are the measurements of
-    /// keyframes `i−1` and `i`. Returns the estimate of `T_i`.
+    /// keyframes `i−1` and `i`. Returns the estimate of `T_i`. The same as [`Self::prepare`],
+    /// [`Self::predict`] with the configured [`MotionEstimate`], then [`Self::update`].
     pub fn step(
         &mut self,
         previous: &FrameMeasurements<N>,
         frame: &FrameMeasurements<N>,
     ) -> Result<Se3, FilterError> {
+        let obs = self.prepare(previous, frame)?;
+        let start = CpuStopwatch::start();
+        let predicted = self.predict(&obs, self.options.motion);
+        self.cost.motion += start.elapsed();
+        self.update(&obs, predicted)
+    }
+
+    /// The first part of a keyframe: marginalises the previous pose (or turns it into an
+    /// anchor), marginalises the lost points, anchors replacements; returns the observations
+    /// of the tracked features in `frame`, the input of [`Self::predict`] and
+    /// [`Self::update`].
+    pub fn prepare(
+        &mut self,
+        previous: &FrameMeasurements<N>,
+        frame: &FrameMeasurements<N>,
+    ) -> Result<Vec<(usize, SVector<f64, N>)>, FilterError> {
         let i = self.frame + 1;
         let t_prev = self.pose;
         let start = CpuStopwatch::start();
@@ -182,29 +199,43 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
             self.filter.marginalize_unused_anchors()?;
         }
         self.cost.marginalization += start.elapsed();
-
-        let obs: Vec<(usize, SVector<f64, N>)> = self
+        Ok(self
             .tracked
             .iter()
             .filter_map(|id| find(frame, *id).map(|z| (*id, z)))
-            .collect();
-        let start = CpuStopwatch::start();
-        let predicted = match self.options.motion {
+            .collect())
+    }
+
+    /// Predicts the new pose from the map after [`Self::prepare`] (thesis §4.6.3), starting
+    /// at the previous estimate; changes nothing, so several estimates can be compared on the
+    /// same state (thesis Fig. 4.10). Falls back to the previous pose if the map prior is
+    /// singular.
+    pub fn predict(&self, obs: &[(usize, SVector<f64, N>)], estimate: MotionEstimate) -> Se3 {
+        let t_prev = self.pose;
+        match estimate {
             MotionEstimate::MotionOnlyBa => {
                 self.filter
-                    .motion_only_ba(&obs, &t_prev, self.options.iterations)
+                    .motion_only_ba(obs, &t_prev, self.options.iterations)
             }
             MotionEstimate::MapPrior { exact } => self
                 .filter
-                .motion_from_map_prior(&obs, &t_prev, self.options.iterations, exact)
+                .motion_from_map_prior(obs, &t_prev, self.options.iterations, exact)
                 .unwrap_or(t_prev),
-        };
-        self.cost.motion += start.elapsed();
+        }
+    }
 
+    /// The last part of a keyframe: the joint update (eq. 4.18) and the information update
+    /// (Alg. 4) from the `predicted` pose. Returns the estimate of `T_i`.
+    pub fn update(
+        &mut self,
+        obs: &[(usize, SVector<f64, N>)],
+        predicted: Se3,
+    ) -> Result<Se3, FilterError> {
+        let i = self.frame + 1;
         let start = CpuStopwatch::start();
         self.filter.begin_frame(i, predicted)?;
         self.filter
-            .update(&obs, &LmSettings::with_iterations(self.options.iterations))?;
+            .update(obs, &LmSettings::with_iterations(self.options.iterations))?;
         self.cost.update += start.elapsed();
         self.frame = i;
         self.pose = self.filter.current().expect("just added").1;

@@ -59,6 +59,9 @@ pub struct DwoArgs {
     /// Worker threads of the optimiser (the thesis timed one core).
     #[arg(long, default_value_t = 1)]
     threads: usize,
+    /// Joint optimisation iterations per keyframe, every method (the thesis: 3).
+    #[arg(long, default_value_t = 3)]
+    iterations: usize,
 }
 
 impl DwoArgs {
@@ -73,6 +76,7 @@ impl DwoArgs {
             keyframes: None,
             seed: 1,
             methods: Some(vec!["cdwo".into(), "gdwo".into()]),
+            iterations: 3,
             threads: 1,
         }
     }
@@ -91,6 +95,7 @@ fn parse_method(s: &str) -> Result<Method> {
 /// Runs the experiment and writes its outputs.
 pub fn run(args: DwoArgs) -> Result<()> {
     anyhow::ensure!(args.threads >= 1, "--threads must be at least 1");
+    anyhow::ensure!(args.iterations >= 1, "--iterations must be at least 1");
     let scenario = match args.scenario {
         ScenarioArg::Spiral => Scenario::Spiral,
         ScenarioArg::Room => Scenario::Room,
@@ -128,7 +133,10 @@ pub fn run(args: DwoArgs) -> Result<()> {
     );
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let config = RunConfig::for_scenario(scenario, args.seed);
+    let config = RunConfig {
+        iterations: args.iterations,
+        ..RunConfig::for_scenario(scenario, args.seed)
+    };
     println!(
         "double window optimisation (thesis §6.5.1): {} keyframes, {:?} {}, methods {}, seed {}, output {}",
         world.camera_from_world.len(),

@@ -26,7 +26,8 @@ pub enum ExperimentCommand {
 /// Options of `dwslam experiment why-filter`.
 #[derive(Args, Debug)]
 pub struct WhyFilterArgs {
-    /// `preliminary` (§4.3), a setting of §4.6.1 (`i`, `ii`, `iii`, `iv`), or `all`.
+    /// `preliminary` (§4.3), a setting of §4.6.1 (`i`, `ii`, `iii`, `iv`), `motion` (§4.6.3,
+    /// Fig. 4.10: the monocular filter's pose prediction by motion-only BA vs Alg. 6), or `all`.
     #[arg(long, default_value = "all")]
     setting: String,
     /// Monte Carlo trials per (setting, sensor, M, N) cell (the thesis uses 500).
@@ -72,14 +73,16 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
 
 fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
     use sim::why_filter::{SensorKind, Setting};
-    let (preliminary, settings): (bool, Vec<Setting>) = match args.setting.as_str() {
-        "all" => (true, Setting::ALL.to_vec()),
-        "preliminary" => (true, Vec::new()),
+    let (preliminary, settings, motion): (bool, Vec<Setting>, bool) = match args.setting.as_str() {
+        "all" => (true, Setting::ALL.to_vec(), true),
+        "preliminary" => (true, Vec::new(), false),
+        "motion" => (false, Vec::new(), true),
         s => (
             false,
             vec![Setting::parse(s).with_context(|| {
-                format!("--setting {s}: expected preliminary, i, ii, iii, iv or all")
+                format!("--setting {s}: expected preliminary, i, ii, iii, iv, motion or all")
             })?],
+            false,
         ),
     };
     let sensors = match args.sensor.as_str() {
@@ -99,15 +102,16 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let started = std::time::Instant::now();
-    let mut summary = serde_json::Map::new();
-    summary.insert(
-        "config".into(),
-        serde_json::json!({
-            "setting": args.setting, "sensor": args.sensor, "trials": args.trials,
-            "seed": args.seed, "workers": workers,
-            "timing": "CPU time of the thread running each trial (one-thread rayon pool per worker; CLOCK_THREAD_CPUTIME_ID), independent of the machine load",
-        }),
-    );
+    let path = args.out.join("summary.json");
+    let mut summary = read_summary(&path)?;
+    let config = serde_json::json!({
+        "setting": args.setting, "sensor": args.sensor, "trials": args.trials,
+        "seed": args.seed, "workers": workers,
+        "timing": "CPU time of the thread running each trial (one-thread rayon pool per worker; CLOCK_THREAD_CPUTIME_ID), independent of the machine load",
+    });
+    if preliminary || !settings.is_empty() {
+        summary.insert("config".into(), config.clone());
+    }
     if preliminary {
         let t = std::time::Instant::now();
         let p = why_filter::run_preliminary();
@@ -122,14 +126,7 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
     }
     if !settings.is_empty() {
         let total = sim::why_filter::trial_specs(&settings, &sensors, args.trials, args.seed).len();
-        let bar = indicatif::ProgressBar::new(total as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{elapsed_precise} [{bar:40}] {pos}/{len} trials, ETA {eta}",
-            )
-            .expect("valid template")
-            .progress_chars("=> "),
-        );
+        let bar = progress(total, "trials");
         let results = why_filter::run_settings(
             &settings,
             &sensors,
@@ -145,11 +142,31 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
             .with_context(|| format!("writing {}", args.out.join("table.txt").display()))?;
         summary.insert("settings".into(), groups);
     }
-    summary.insert(
-        "elapsed_seconds".into(),
-        serde_json::json!(started.elapsed().as_secs_f64()),
-    );
-    let path = args.out.join("summary.json");
+    if motion {
+        let started = std::time::Instant::now();
+        let specs = sim::why_filter::motion_specs(args.trials, args.seed);
+        let bar = progress(specs.len(), "Fig. 4.10 trials");
+        let results = sim::why_filter::run_parallel(
+            &specs,
+            workers,
+            sim::why_filter::run_motion_trial,
+            &|| bar.inc(1),
+        );
+        bar.finish();
+        let (mut entry, table) = why_filter::write_motion(&results, &args.out)?;
+        entry["config"] = config;
+        entry["elapsed_seconds"] = serde_json::json!(started.elapsed().as_secs_f64());
+        println!("{table}");
+        std::fs::write(args.out.join("motion_table.txt"), &table)
+            .with_context(|| format!("writing {}", args.out.join("motion_table.txt").display()))?;
+        summary.insert("motion".into(), entry);
+    }
+    if preliminary || !settings.is_empty() {
+        summary.insert(
+            "elapsed_seconds".into(),
+            serde_json::json!(started.elapsed().as_secs_f64()),
+        );
+    }
     std::fs::write(
         &path,
         serde_json::to_string_pretty(&serde_json::Value::Object(summary))?,
@@ -157,6 +174,32 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
     .with_context(|| format!("writing {}", path.display()))?;
     println!("wrote {} (and CSV/PNG files beside it)", path.display());
     Ok(())
+}
+
+/// The `summary.json` an earlier run left at `path` (empty if there is none): parts of an
+/// experiment may be run separately, each merging its keys into the summary.
+pub(crate) fn read_summary(
+    path: &std::path::Path,
+) -> Result<serde_json::Map<String, serde_json::Value>> {
+    match std::fs::read_to_string(path) {
+        Ok(text) => serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a JSON object", path.display())),
+        Err(_) => Ok(serde_json::Map::new()),
+    }
+}
+
+/// A progress bar of `len` steps labelled `what`.
+pub(crate) fn progress(len: usize, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{msg:<28} [{elapsed_precise}] {wide_bar} {pos}/{len} (eta {eta})",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
 }
 
 fn run_cbh(args: CbhArgs) -> Result<()> {

@@ -4,9 +4,9 @@
 //! CBH Jacobians (Fig. 5.4). The computations live in [`sim::scale_drift`]; this module runs
 //! them with progress bars and writes CSV files, PNG plots and `summary.json`.
 
+use super::progress;
 use crate::plot::{self, Figure, GREY, PALETTE, Series, Style};
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use lie::Se3;
 use serde_json::{Map, Value, json};
 use sim::scale_drift::{
@@ -62,19 +62,6 @@ pub struct ScaleDriftArgs {
     pub full_ba: bool,
 }
 
-fn progress(len: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len as u64);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{msg:<28} [{elapsed_precise}] {wide_bar} {pos}/{len} (eta {eta})",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
-
 /// Runs the experiment.
 pub fn run(args: ScaleDriftArgs) -> Result<()> {
     if args.runs == 0 {
@@ -89,12 +76,7 @@ pub fn run(args: ScaleDriftArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let summary_path = args.out.join("summary.json");
-    // Parts may be run separately: keep what earlier runs wrote.
-    let mut summary: Map<String, Value> = match std::fs::read_to_string(&summary_path) {
-        Ok(text) => serde_json::from_str(&text)
-            .with_context(|| format!("{}: not a JSON object", summary_path.display()))?,
-        Err(_) => Map::new(),
-    };
+    let mut summary = super::read_summary(&summary_path)?;
     let settings = RunSettings {
         full_ba: args.full_ba,
         ..RunSettings::default()

@@ -11,7 +11,8 @@ use anyhow::{Context, Result};
 use serde_json::{Value, json};
 use sim::preliminary;
 use sim::why_filter::{
-    CellStats, SensorKind, Setting, TrialResult, TrialSpec, log_log_slope, run_trials, summarize,
+    CellStats, MOTION_ESTIMATES, MotionCellStats, PipelineResult, SensorKind, Setting, TrialResult,
+    TrialSpec, log_log_slope, motion_estimate_name, run_trials, summarize, summarize_motion,
     trial_specs,
 };
 use std::fmt::Write as _;
@@ -147,6 +148,185 @@ pub fn run_settings(
 ) -> Vec<(TrialSpec, TrialResult)> {
     let specs = trial_specs(settings, sensors, trials, seed);
     run_trials(&specs, workers, on_done)
+}
+
+/// Writes the pose-prediction study of thesis §4.6.3 (Fig. 4.10): `motion_trials.csv`,
+/// `motion_cells.csv`, `fig4_10_accuracy.png`, `fig4_10_cost.png`; returns the summary entry
+/// and a table.
+pub fn write_motion(
+    results: &[(TrialSpec, [PipelineResult; 3])],
+    out: &Path,
+) -> Result<(Value, String)> {
+    let names = MOTION_ESTIMATES.map(motion_estimate_name);
+    let mut csv = String::from("m,n,trial");
+    for name in names {
+        write!(csv, ",{name}_ok,{name}_e0,{name}_e1,{name}_cost")?;
+    }
+    csv.push('\n');
+    for (s, r) in results {
+        write!(csv, "{},{},{}", s.m, s.n, s.trial)?;
+        for p in r {
+            match &p.error {
+                Some(e) => write!(csv, ",1,{:.9},{:.9},{:.9}", e[0], e[1], p.cost_total)?,
+                None => csv.push_str(",0,,,"),
+            }
+        }
+        csv.push('\n');
+    }
+    write(out, "motion_trials.csv", &csv)?;
+    let cells = summarize_motion(results);
+    let mut csv = String::from("m,n");
+    for name in names {
+        write!(
+            csv,
+            ",{name}_successes,{name}_rmse,{name}_median_error,{name}_ms_per_prediction"
+        )?;
+    }
+    csv.push('\n');
+    let ms_per_prediction =
+        |c: &MotionCellStats, k: usize| 1e3 * c.estimates[k].cost_total / c.m as f64;
+    let mut table = String::from(
+        "Fig. 4.10 — monocular filter, setting (i): the end pose predicted from the filter's map\n\
+         ⟨M, N⟩      RMSE (mm): motion-only BA / Alg. 6 approx. / Alg. 6 exact    ms per prediction: same order\n",
+    );
+    for c in &cells {
+        write!(csv, "{},{}", c.m, c.n)?;
+        for (k, e) in c.estimates.iter().enumerate() {
+            write!(
+                csv,
+                ",{},{:.9},{:.9},{:.6}",
+                e.successes,
+                e.rmse,
+                e.median_error,
+                ms_per_prediction(c, k)
+            )?;
+        }
+        csv.push('\n');
+        writeln!(
+            table,
+            "⟨{:>2}, {:>3}⟩   {:>8.2} {:>8.2} {:>8.2}      {:>9.3} {:>9.3} {:>9.3}",
+            c.m,
+            c.n,
+            1e3 * c.estimates[0].rmse,
+            1e3 * c.estimates[1].rmse,
+            1e3 * c.estimates[2].rmse,
+            ms_per_prediction(c, 0),
+            ms_per_prediction(c, 1),
+            ms_per_prediction(c, 2),
+        )?;
+    }
+    write(out, "motion_cells.csv", &csv)?;
+    let labels = ["motion-only BA", "Alg. 6 approximate", "Alg. 6 exact"];
+    let m_values: Vec<usize> = {
+        let mut v: Vec<usize> = cells.iter().map(|c| c.m).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    let (m_lo, m_hi) = (m_values[0], *m_values.last().expect("cells"));
+    let curve = |m: usize, f: &dyn Fn(&MotionCellStats) -> f64| -> Vec<(f64, f64)> {
+        cells
+            .iter()
+            .filter(|c| c.m == m)
+            .map(|c| (c.n as f64, f(c)))
+            .filter(|(_, y)| y.is_finite())
+            .collect()
+    };
+    let mut series = Vec::new();
+    for (k, label) in labels.iter().enumerate() {
+        for (m, style) in [(m_lo, Style::Line), (m_hi, Style::Dashed)] {
+            if style == Style::Dashed && m_hi == m_lo {
+                continue;
+            }
+            series.push(Series {
+                label: format!("{label}, M = {m}"),
+                points: curve(m, &|c| 1e3 * c.estimates[k].rmse),
+                color: PALETTE[k],
+                style,
+            });
+        }
+    }
+    plot::plot(
+        &out.join("fig4_10_accuracy.png"),
+        &Figure {
+            title: "Fig. 4.10 (a): predicted end pose, monocular filter map, setting (i)",
+            x_label: "points N",
+            y_label: "RMSE of the predicted end pose (mm, eq. 4.28-4.29)",
+            equal_aspect: false,
+            log_y: true,
+        },
+        &series,
+    )?;
+    let series: Vec<Series> = labels
+        .iter()
+        .enumerate()
+        .map(|(k, label)| Series {
+            label: format!("{label}, M = {m_lo}"),
+            points: curve(m_lo, &|c| ms_per_prediction(c, k)),
+            color: PALETTE[k],
+            style: Style::Line,
+        })
+        .collect();
+    plot::plot(
+        &out.join("fig4_10_cost.png"),
+        &Figure {
+            title: "Fig. 4.10 (b): CPU time of one pose prediction",
+            x_label: "points N",
+            y_label: "ms per prediction",
+            equal_aspect: false,
+            log_y: true,
+        },
+        &series,
+    )?;
+    // Headline numbers: per estimate, the RMSE relative to motion-only BA (geometric mean over
+    // the cells) and the cost exponent in N (N ≥ 60, all M pooled per M and averaged).
+    let mut estimates = serde_json::Map::new();
+    for (k, name) in names.iter().enumerate() {
+        let ratios: Vec<f64> = cells
+            .iter()
+            .map(|c| (c.estimates[k].rmse / c.estimates[0].rmse).ln())
+            .filter(|x| x.is_finite())
+            .collect();
+        let exponent = mean(
+            &m_values
+                .iter()
+                .map(|&m| {
+                    log_log_slope(
+                        &cells
+                            .iter()
+                            .filter(|c| c.m == m && c.n >= 60)
+                            .map(|c| (c.n as f64, c.estimates[k].cost_total))
+                            .collect::<Vec<_>>(),
+                    )
+                })
+                .collect::<Vec<_>>(),
+        );
+        let better = cells
+            .iter()
+            .filter(|c| c.estimates[k].rmse < c.estimates[0].rmse)
+            .count();
+        writeln!(
+            table,
+            "{:<18} RMSE / motion-only BA (geometric mean over cells) {:.3}; lower RMSE than motion-only BA in {}/{} cells; cost exponent in N (N ≥ 60) {:.2}",
+            labels[k],
+            mean(&ratios).exp(),
+            better,
+            cells.len(),
+            exponent
+        )?;
+        estimates.insert(
+            (*name).into(),
+            json!({
+                "rmse_over_motion_only_ba": mean(&ratios).exp(),
+                "cells_better_than_motion_only_ba": better,
+                "cost_exponent_n": exponent,
+            }),
+        );
+    }
+    Ok((
+        json!({ "setting": "i", "sensor": "mono", "estimates": estimates, "cells": cells }),
+        table,
+    ))
 }
 
 /// Fitted cost exponents of one (setting, sensor): per `M`, the slope of `ln cost` over
