@@ -40,7 +40,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use slam::ba::Projector;
-use slam::dwo::{DoubleWindowOptimiser, DwoParams, DwoStats};
+use slam::dwo::{ConstraintInformation, DoubleWindowOptimiser, DwoParams, DwoStats};
 use slam::graph::{KeyframeId, PointId, SlamGraph};
 use slam::registration::{self, MetricLoopParams};
 use std::collections::{BTreeMap, BTreeSet};
@@ -296,6 +296,8 @@ pub struct RunConfig {
     pub all_pairs_every: usize,
     /// Noise seed.
     pub seed: u64,
+    /// How the pose-pose constraints' information is computed (thesis: coarse, eq. 6.2).
+    pub information: ConstraintInformation,
 }
 
 impl RunConfig {
@@ -314,6 +316,7 @@ impl RunConfig {
             guided_radius: 10.0,
             all_pairs_every: 5,
             seed,
+            information: ConstraintInformation::Coarse,
         }
     }
 
@@ -329,6 +332,7 @@ impl RunConfig {
         let mut p = DwoParams::new(inner, outer, focal, sigma).with_baseline(baseline);
         p.iterations = self.iterations;
         p.fix_outer = fix;
+        p.information = self.information;
         p
     }
 }

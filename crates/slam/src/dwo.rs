@@ -126,6 +126,20 @@ impl Factor for WindowBetween {
     }
 }
 
+/// How the information of a pose-pose constraint is computed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ConstraintInformation {
+    /// Thesis eq. 6.2: diagonal, the rotation and translation precision of
+    /// [`DwoParams::edge_precision`] times the weight of the edge's unrepresented points.
+    #[default]
+    Coarse,
+    /// Pair-wise marginalisation: the Schur complement of the edge's unrepresented points
+    /// (each observation weighted `2/k` like the coarse weight) on the pose of the edge's
+    /// second keyframe with the first held, at the current estimate — the information those
+    /// points give the relative pose (full 6×6; the fixed scale keeps the coarse precision).
+    Marginal,
+}
+
 /// Options of double window optimisation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DwoParams {
@@ -152,6 +166,8 @@ pub struct DwoParams {
     pub min_parallax: f64,
     /// Robust kernel of the reprojection errors (in units of σ).
     pub kernel: Option<RobustKernel>,
+    /// How the pose-pose constraints' information is computed.
+    pub information: ConstraintInformation,
 }
 
 impl DwoParams {
@@ -189,6 +205,7 @@ impl DwoParams {
             baseline: 0.0,
             min_parallax: 1e-3,
             kernel: None,
+            information: ConstraintInformation::Coarse,
         }
     }
 
@@ -245,6 +262,8 @@ pub struct PoseConstraint {
     pub relative: Sim3,
     /// Diagonal of `Λ_ji` (thesis eq. 6.2): translation, rotation, scale.
     pub information: [f64; 7],
+    /// The points the constraint stands for (shared, not active) with their weights `2/k`.
+    pub points: Vec<(PointId, f64)>,
 }
 
 /// Everything one double window optimisation does, decided from the graph before optimising
@@ -511,13 +530,16 @@ impl DoubleWindowOptimiser {
                 // shared by `k(k−1)/2` edges, so it counts `2/k` in each (thesis §6.2.3: a
                 // landmark marginalised out of `k` frames is one hyper-edge, not `k(k−1)/2`
                 // independent binary ones).
-                let unrepresented: f64 = kf_a
+                let shared: Vec<(PointId, f64)> = kf_a
                     .observations()
                     .keys()
                     .filter(|pid| kf_b.observations().contains_key(pid) && !points.contains(pid))
-                    .filter_map(|pid| graph.point(*pid))
-                    .map(|pt| 2.0 / pt.observers().len().max(2) as f64)
-                    .sum();
+                    .filter_map(|pid| {
+                        let pt = graph.point(*pid)?;
+                        Some((*pid, 2.0 / pt.observers().len().max(2) as f64))
+                    })
+                    .collect();
+                let unrepresented: f64 = shared.iter().map(|(_, w)| w).sum();
                 if unrepresented == 0.0 {
                     continue;
                 }
@@ -540,6 +562,7 @@ impl DoubleWindowOptimiser {
                     to: b,
                     relative,
                     information: [t2, t2, t2, r2, r2, r2, r2],
+                    points: shared,
                 });
             }
         }
@@ -609,13 +632,20 @@ impl DoubleWindowOptimiser {
             }
         }
         for c in &plan.constraints {
+            let information = match self.params.information {
+                ConstraintInformation::Coarse => None,
+                ConstraintInformation::Marginal => {
+                    self.marginal_information(graph, plan, c, projector)
+                }
+            }
+            .unwrap_or_else(|| Information::Diagonal(c.information.to_vec()));
             problem.add_factor(
                 WindowBetween {
                     from: poses[&c.from],
                     to: poses[&c.to],
                     measured: c.relative,
                 },
-                Information::Diagonal(c.information.to_vec()),
+                information,
                 None,
             )?;
         }
@@ -630,6 +660,74 @@ impl DoubleWindowOptimiser {
             points,
             point_constraints,
         })
+    }
+
+    /// [`ConstraintInformation::Marginal`] of a constraint `i → j`: with `T_i` held, each of
+    /// its points `y` (world coordinates at the current estimate, observed in both keyframes,
+    /// weight `w`) contributes `H_jj − H_jy·H_yy⁻¹·H_yj` from its two observations, where `H`
+    /// is `w·JᵀJ/σ²` over the rigid left increment of `T_j` and the point (the Schur
+    /// complement does not depend on how the point is parametrised). Near the stored relative
+    /// pose `∂v/∂ε_j ≈ −I`, so this is the information of the residual's rigid part. `None`
+    /// if a point cannot be projected or the result is not positive definite even with a
+    /// small ridge (the coarse information is used then).
+    fn marginal_information<P: Projector<N>, const N: usize>(
+        &self,
+        graph: &SlamGraph<N>,
+        plan: &DwoPlan,
+        c: &PoseConstraint,
+        projector: &P,
+    ) -> Option<Information> {
+        use nalgebra::{Matrix3, Matrix6, SMatrix};
+        let pose = |k: KeyframeId| {
+            plan.initial_poses
+                .get(&k)
+                .copied()
+                .or_else(|| graph.pose(k).ok())
+        };
+        let (t_i, t_j) = (pose(c.from)?, pose(c.to)?);
+        let inv_var = 1.0 / (self.params.sigma * self.params.sigma);
+        let mut info = Matrix6::<f64>::zeros();
+        for &(pid, w) in &c.points {
+            let pt = graph.point(pid)?;
+            let y = pose(pt.anchor)?
+                .inverse()
+                .act(&crate::ba::inverse_depth_to_point(&pt.inverse_depth));
+            let mut h_yy = Matrix3::<f64>::zeros();
+            let mut h_jy = SMatrix::<f64, 6, 3>::zeros();
+            let mut h_jj = Matrix6::<f64>::zeros();
+            for (t, is_j) in [(&t_i, false), (&t_j, true)] {
+                let x = t.act(&y);
+                let (_, dx) = projector.project(&x)?;
+                let j_y = dx * t.rotation().matrix() * t.scale();
+                h_yy += j_y.transpose() * j_y * (w * inv_var);
+                if is_j {
+                    // ∂x/∂(v, ω) of exp((v, ω, 0))·x at 0: [I | −[x]×].
+                    let mut dxe = SMatrix::<f64, 3, 6>::zeros();
+                    dxe.fixed_view_mut::<3, 3>(0, 0)
+                        .copy_from(&Matrix3::identity());
+                    dxe.fixed_view_mut::<3, 3>(0, 3)
+                        .copy_from(&(-x.cross_matrix()));
+                    let j_pose = dx * dxe;
+                    h_jj += j_pose.transpose() * j_pose * (w * inv_var);
+                    h_jy += j_pose.transpose() * j_y * (w * inv_var);
+                }
+            }
+            let h_yy_inv = h_yy.try_inverse()?;
+            info += h_jj - h_jy * h_yy_inv * h_jy.transpose();
+        }
+        // A few points constrain only some directions (one stereo point: three): a ridge of
+        // 1e-6 of the largest diagonal entry keeps the information positive definite for the
+        // whitening without adding information that matters.
+        let info = 0.5 * (info + info.transpose());
+        let ridge = 1e-6 * info.diagonal().max();
+        let info = info + Matrix6::identity() * ridge;
+        if ridge.is_nan() || ridge <= 0.0 || info.symmetric_eigenvalues().min() <= 0.0 {
+            return None;
+        }
+        let mut full = nalgebra::DMatrix::<f64>::zeros(7, 7);
+        full.view_mut((0, 0), (6, 6)).copy_from(&info);
+        full[(6, 6)] = c.information[6];
+        Some(Information::Full(full))
     }
 
     /// Structure-only then joint iterations on a built problem (no graph access).
@@ -918,6 +1016,47 @@ mod graph_tests {
                 }
             }
         }
+        g.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn marginal_constraint_information_is_a_sum_of_positive_schur_complements() {
+        let (mut g, cam, _) = wall_graph(1, 30);
+        let mut params = DwoParams::new(5, 10, 300.0, 0.5);
+        params.information = ConstraintInformation::Marginal;
+        let mut dwo = DoubleWindowOptimiser::new(params);
+        dwo.optimise(&mut g, &cam).unwrap();
+        g.set_reference(3).unwrap();
+        let plan = dwo.plan(&g).unwrap();
+        let full = |c: &PoseConstraint| match dwo.marginal_information(&g, &plan, c, &cam) {
+            Some(Information::Full(m)) => m,
+            other => panic!("{other:?}"),
+        };
+        let mut checked = 0;
+        for c in plan.constraints.iter().filter(|c| c.points.len() >= 4) {
+            let all = full(c);
+            let half = PoseConstraint {
+                points: c.points[..c.points.len() / 2].to_vec(),
+                ..c.clone()
+            };
+            let rest = PoseConstraint {
+                points: c.points[c.points.len() / 2..].to_vec(),
+                ..c.clone()
+            };
+            let rigid = |m: nalgebra::DMatrix<f64>| m.view((0, 0), (6, 6)).into_owned();
+            let (all, h, r) = (rigid(all), rigid(full(&half)), rigid(full(&rest)));
+            // Each point's Schur complement is positive semi-definite and they add up (up to
+            // the ridge of 1e-6 of the largest diagonal entry).
+            assert!((&all - &h - &r).abs().max() <= 3e-6 * all.abs().max());
+            for m in [&all, &h, &r] {
+                let eig = m.clone().symmetric_eigenvalues();
+                assert!(eig.min() > 0.0, "{eig}");
+            }
+            checked += 1;
+        }
+        assert!(checked > 0);
+        let stats = dwo.optimise(&mut g, &cam).unwrap();
+        assert!(stats.cost_after < stats.cost_before);
         g.check_invariants().unwrap();
     }
 

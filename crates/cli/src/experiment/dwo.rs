@@ -62,6 +62,17 @@ pub struct DwoArgs {
     /// Joint optimisation iterations per keyframe, every method (the thesis: 3).
     #[arg(long, default_value_t = 3)]
     iterations: usize,
+    /// Information of the pose-pose constraints: `coarse` (thesis eq. 6.2) or `marginal`
+    /// (pair-wise marginalisation of the points each constraint stands for).
+    #[arg(long, value_enum, default_value_t = InformationArg::Coarse)]
+    constraint_information: InformationArg,
+}
+
+/// `--constraint-information`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum InformationArg {
+    Coarse,
+    Marginal,
 }
 
 impl DwoArgs {
@@ -77,6 +88,7 @@ impl DwoArgs {
             seed: 1,
             methods: Some(vec!["cdwo".into(), "gdwo".into()]),
             iterations: 3,
+            constraint_information: InformationArg::Coarse,
             threads: 1,
         }
     }
@@ -135,6 +147,10 @@ pub fn run(args: DwoArgs) -> Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     let config = RunConfig {
         iterations: args.iterations,
+        information: match args.constraint_information {
+            InformationArg::Coarse => slam::dwo::ConstraintInformation::Coarse,
+            InformationArg::Marginal => slam::dwo::ConstraintInformation::Marginal,
+        },
         ..RunConfig::for_scenario(scenario, args.seed)
     };
     println!(
@@ -506,6 +522,7 @@ fn report(
         "inner_window": config.inner,
         "outer_window": config.outer,
         "iterations_per_keyframe": config.iterations,
+        "constraint_information": format!("{:?}", config.information),
         "theta": config.theta,
         "seed": config.seed,
         "rmse": if mono { "eq. 6.10 with unit-normalised relative translations" } else { "eq. 6.10 (m)" },
