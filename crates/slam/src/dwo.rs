@@ -1020,41 +1020,85 @@ mod graph_tests {
     }
 
     #[test]
-    fn marginal_constraint_information_is_a_sum_of_positive_schur_complements() {
-        let (mut g, cam, _) = wall_graph(1, 30);
+    fn marginal_constraint_information_is_the_inverse_covariance_of_a_two_view_problem() {
+        // An independent path: the least-squares engine's marginal covariance of `T_j` in the
+        // problem of the constraint's points observed from `T_i` (fixed) and `T_j`, through
+        // the window's own factors (anchored inverse depth; anchors other than `i`, `j`
+        // fixed), each point's observations with information `w/σ²`.
+        let (mut g, cam, _) = wall_graph(4, 30);
         let mut params = DwoParams::new(5, 10, 300.0, 0.5);
         params.information = ConstraintInformation::Marginal;
         let mut dwo = DoubleWindowOptimiser::new(params);
         dwo.optimise(&mut g, &cam).unwrap();
         g.set_reference(3).unwrap();
         let plan = dwo.plan(&g).unwrap();
-        let full = |c: &PoseConstraint| match dwo.marginal_information(&g, &plan, c, &cam) {
-            Some(Information::Full(m)) => m,
-            other => panic!("{other:?}"),
-        };
         let mut checked = 0;
-        for c in plan.constraints.iter().filter(|c| c.points.len() >= 4) {
-            let all = full(c);
-            let half = PoseConstraint {
-                points: c.points[..c.points.len() / 2].to_vec(),
-                ..c.clone()
+        for c in plan
+            .constraints
+            .iter()
+            .filter(|c| c.points.len() >= 10)
+            .take(5)
+        {
+            let Some(Information::Full(ours)) = dwo.marginal_information(&g, &plan, c, &cam) else {
+                panic!("no marginal information");
             };
-            let rest = PoseConstraint {
-                points: c.points[c.points.len() / 2..].to_vec(),
-                ..c.clone()
+            let pose = |k| {
+                plan.initial_poses
+                    .get(&k)
+                    .copied()
+                    .unwrap_or(g.pose(k).unwrap())
             };
-            let rigid = |m: nalgebra::DMatrix<f64>| m.view((0, 0), (6, 6)).into_owned();
-            let (all, h, r) = (rigid(all), rigid(full(&half)), rigid(full(&rest)));
-            // Each point's Schur complement is positive semi-definite and they add up (up to
-            // the ridge of 1e-6 of the largest diagonal entry).
-            assert!((&all - &h - &r).abs().max() <= 3e-6 * all.abs().max());
-            for m in [&all, &h, &r] {
-                let eig = m.clone().symmetric_eigenvalues();
-                assert!(eig.min() > 0.0, "{eig}");
+            let mut problem = Problem::new();
+            let mut vars = BTreeMap::new();
+            for k in [c.from, c.to] {
+                vars.insert(k, problem.add_variable(FixedScaleSim3(pose(k))));
             }
+            problem.set_fixed(vars[&c.from].key(), true);
+            for &(pid, w) in &c.points {
+                let pt = g.point(pid).unwrap();
+                let anchor = *vars.entry(pt.anchor).or_insert_with(|| {
+                    let v = problem.add_variable(FixedScaleSim3(pose(pt.anchor)));
+                    problem.set_fixed(v.key(), true);
+                    v
+                });
+                let psi = problem.add_variable(pt.inverse_depth);
+                let info = Information::Isotropic(0.5 / w.sqrt());
+                for k in [c.from, c.to] {
+                    let z = g.keyframe(k).unwrap().observations()[&pid];
+                    if k == pt.anchor {
+                        let f = AnchorObservation {
+                            inverse_depth_point: psi,
+                            measurement: z,
+                            projector: cam,
+                        };
+                        problem.add_factor(f, info.clone(), None).unwrap();
+                    } else {
+                        let f = AnchoredObservation {
+                            observer_from_world: vars[&k],
+                            anchor_from_world: anchor,
+                            inverse_depth_point: psi,
+                            measurement: z,
+                            projector: cam,
+                        };
+                        problem.add_factor(f, info.clone(), None).unwrap();
+                    }
+                }
+            }
+            let covariance = problem.covariance(&[vars[&c.to].key()]).unwrap();
+            let theirs = covariance.try_inverse().unwrap();
+            let ours = ours.view((0, 0), (6, 6)).into_owned();
+            // Ours has a ridge of 1e-6 of its largest diagonal entry (before the ridge).
+            let ridge = 1e-6 * ours.diagonal().max() / (1.0 + 1e-6);
+            let ours_without_ridge = &ours - nalgebra::DMatrix::<f64>::identity(6, 6) * ridge;
+            let diff = (&ours_without_ridge - &theirs).abs().max();
+            assert!(
+                diff <= 1e-9 * theirs.abs().max(),
+                "{diff:e}: ours\n{ours}theirs\n{theirs}"
+            );
             checked += 1;
         }
         assert!(checked > 0);
+        // And the window optimises with it.
         let stats = dwo.optimise(&mut g, &cam).unwrap();
         assert!(stats.cost_after < stats.cost_before);
         g.check_invariants().unwrap();
