@@ -91,6 +91,12 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
         "mono" => vec![SensorKind::Mono],
         s => anyhow::bail!("--sensor {s}: expected stereo, mono or both"),
     };
+    // The pose-prediction study (Fig. 4.10) is about the monocular filter.
+    anyhow::ensure!(
+        args.setting != "motion" || sensors.contains(&SensorKind::Mono),
+        "--setting motion is the monocular filter's study (Fig. 4.10): use --sensor mono or both"
+    );
+    let motion = motion && sensors.contains(&SensorKind::Mono);
     anyhow::ensure!(
         args.trials >= 2,
         "--trials must be at least 2 (sample covariances)"
