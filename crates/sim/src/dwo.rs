@@ -296,7 +296,8 @@ pub struct RunConfig {
     pub all_pairs_every: usize,
     /// Noise seed.
     pub seed: u64,
-    /// How the pose-pose constraints' information is computed (thesis: coarse, eq. 6.2).
+    /// How the pose-pose constraints' information is computed (default: marginal; the
+    /// thesis's coarse eq. 6.2 is the option).
     pub information: ConstraintInformation,
 }
 
@@ -316,7 +317,7 @@ impl RunConfig {
             guided_radius: 10.0,
             all_pairs_every: 5,
             seed,
-            information: ConstraintInformation::Coarse,
+            information: ConstraintInformation::Marginal,
         }
     }
 

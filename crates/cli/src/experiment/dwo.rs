@@ -62,10 +62,13 @@ pub struct DwoArgs {
     /// Joint optimisation iterations per keyframe, every method (the thesis: 3).
     #[arg(long, default_value_t = 3)]
     iterations: usize,
-    /// Information of the pose-pose constraints: `coarse` (thesis eq. 6.2) or `marginal`
-    /// (pair-wise marginalisation of the points each constraint stands for).
-    #[arg(long, value_enum, default_value_t = InformationArg::Coarse)]
+    /// Information of the pose-pose constraints: `marginal` (pair-wise marginalisation of the
+    /// points each constraint stands for) or `coarse` (thesis eq. 6.2).
+    #[arg(long, value_enum, default_value_t = InformationArg::Marginal)]
     constraint_information: InformationArg,
+    /// Standard deviation of the image noise (pixels; the thesis: 1).
+    #[arg(long, default_value_t = 1.0)]
+    noise: f64,
 }
 
 /// `--constraint-information`.
@@ -88,8 +91,9 @@ impl DwoArgs {
             seed: 1,
             methods: Some(vec!["cdwo".into(), "gdwo".into()]),
             iterations: 3,
-            constraint_information: InformationArg::Coarse,
+            constraint_information: InformationArg::Marginal,
             threads: 1,
+            noise: 1.0,
         }
     }
 }
@@ -108,6 +112,11 @@ fn parse_method(s: &str) -> Result<Method> {
 pub fn run(args: DwoArgs) -> Result<()> {
     anyhow::ensure!(args.threads >= 1, "--threads must be at least 1");
     anyhow::ensure!(args.iterations >= 1, "--iterations must be at least 1");
+    anyhow::ensure!(
+        args.noise.is_finite() && args.noise > 0.0,
+        "--noise must be a positive number of pixels (got {})",
+        args.noise
+    );
     let scenario = match args.scenario {
         ScenarioArg::Spiral => Scenario::Spiral,
         ScenarioArg::Room => Scenario::Room,
@@ -154,7 +163,7 @@ pub fn run(args: DwoArgs) -> Result<()> {
         ..RunConfig::for_scenario(scenario, args.seed)
     };
     println!(
-        "double window optimisation (thesis §6.5.1): {} keyframes, {:?} {}, methods {}, seed {}, output {}",
+        "double window optimisation (thesis §6.5.1): {} keyframes, {:?} {}, methods {}, seed {}, noise {} px, output {}",
         world.camera_from_world.len(),
         scenario,
         match sensor {
@@ -167,6 +176,7 @@ pub fn run(args: DwoArgs) -> Result<()> {
             .collect::<Vec<_>>()
             .join(", "),
         args.seed,
+        args.noise,
         args.out.display()
     );
     let pool = rayon::ThreadPoolBuilder::new()
@@ -174,14 +184,21 @@ pub fn run(args: DwoArgs) -> Result<()> {
         .build()?;
     let results = pool.install(|| match sensor {
         SensorKind::Stereo => run_all(
-            &StereoSensor::vga(300.0, 0.05, 1.0),
+            &StereoSensor::vga(300.0, 0.05, args.noise),
             &world,
             &methods,
             &config,
         ),
-        SensorKind::Mono => run_all(&MonoSensor::vga(300.0, 1.0), &world, &methods, &config),
+        SensorKind::Mono => run_all(
+            &MonoSensor::vga(300.0, args.noise),
+            &world,
+            &methods,
+            &config,
+        ),
     })?;
-    report(&args.out, scenario, sensor, &config, &world, &results)
+    report(
+        &args.out, scenario, sensor, args.noise, &config, &world, &results,
+    )
 }
 
 fn run_all<C: SimCamera<N>, const N: usize>(
@@ -281,6 +298,7 @@ fn report(
     out: &Path,
     scenario: Scenario,
     sensor: SensorKind,
+    noise_px: f64,
     config: &RunConfig,
     world: &World,
     results: &[RunResult],
@@ -517,6 +535,7 @@ fn report(
     let summary = json!({
         "scenario": match scenario { Scenario::Spiral => "spiral", Scenario::Room => "room", Scenario::DoubleLoop => "double-loop" },
         "sensor": if mono { "mono" } else { "stereo" },
+        "noise_px": noise_px,
         "keyframes": n,
         "points": world.points.len(),
         "inner_window": config.inner,
@@ -619,4 +638,35 @@ fn scale_spread(records: &[KeyframeRecord]) -> f64 {
             .map(|r| r.local_scale)
             .collect::<Vec<_>>(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_options_are_refused_before_anything_runs() {
+        let out = std::env::temp_dir().join("dwslam-dwo-bad-options");
+        for noise in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let args = DwoArgs {
+                noise,
+                out: out.clone(),
+                ..DwoArgs::demo()
+            };
+            let e = run(args).expect_err("a non-positive or non-finite noise must be refused");
+            assert!(e.to_string().contains("--noise"), "{e}");
+        }
+        let args = DwoArgs {
+            methods: Some(vec!["bundle".into()]),
+            out: out.clone(),
+            ..DwoArgs::demo()
+        };
+        assert!(
+            run(args)
+                .unwrap_err()
+                .to_string()
+                .contains("unknown method")
+        );
+        assert!(!out.exists(), "nothing is written for refused options");
+    }
 }
