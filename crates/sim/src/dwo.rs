@@ -317,7 +317,7 @@ impl RunConfig {
             guided_radius: 10.0,
             all_pairs_every: 5,
             seed,
-            information: ConstraintInformation::Marginal,
+            information: ConstraintInformation::default(),
         }
     }
 

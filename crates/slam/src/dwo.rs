@@ -211,7 +211,7 @@ impl DwoParams {
             baseline: 0.0,
             min_parallax: 1e-3,
             kernel: None,
-            information: ConstraintInformation::Marginal,
+            information: ConstraintInformation::default(),
         }
     }
 
