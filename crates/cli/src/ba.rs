@@ -212,7 +212,7 @@ pub fn run(args: BaArgs) -> Result<()> {
     }
     let quiet = args.quiet;
     let cpu_before = process_cpu_seconds();
-    let summary = ba.problem.optimize_with(&options, |it| {
+    let summary = ba.problem.optimise_with(&options, |it| {
         if !quiet {
             println!(
                 "{:>4}  {:>16.6}  {:>9.2e}  {:>9.2e}  {:>6}  {:>6}  {:>8.2}  {:>8.2}  {:>8.2}  {:>9.3}",

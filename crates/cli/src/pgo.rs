@@ -230,7 +230,7 @@ fn optimise<G: LieGroup<D> + Manifold, const D: usize>(
     }
     let mut previous = None;
     let quiet = args.quiet;
-    let summary = pg.problem.optimize_with(&options, |it| {
+    let summary = pg.problem.optimise_with(&options, |it| {
         if quiet {
             return;
         }
@@ -320,7 +320,7 @@ pub fn run(args: PgoArgs) -> Result<()> {
         }
     );
     let initial_xy: Vec<(f64, f64)> = trajectory_xy(&graph);
-    let (summary, optimized_cost) = match &mut graph {
+    let (summary, optimised_cost) = match &mut graph {
         G2oGraph::Se2(g) => {
             if args.group == Group::Sim3 {
                 bail!(
@@ -374,7 +374,7 @@ pub fn run(args: PgoArgs) -> Result<()> {
     );
     if args.group == Group::Sim3 {
         println!(
-            "         SE(3) ½χ² of the rigid poses recovered from the similarities: {optimized_cost:.6}"
+            "         SE(3) ½χ² of the rigid poses recovered from the similarities: {optimised_cost:.6}"
         );
     }
     println!(
@@ -388,7 +388,7 @@ pub fn run(args: PgoArgs) -> Result<()> {
         println!("wrote {}", out.display());
     }
     if let Some(path) = &args.plot {
-        let optimized_xy = trajectory_xy(&graph);
+        let optimised_xy = trajectory_xy(&graph);
         let name = args
             .file
             .file_name()
@@ -420,7 +420,7 @@ pub fn run(args: PgoArgs) -> Result<()> {
                 },
                 Series {
                     label: "optimised".into(),
-                    points: optimized_xy,
+                    points: optimised_xy,
                     color: plot::PALETTE[0],
                     style: Style::Line,
                 },

@@ -3,7 +3,7 @@
 //!
 //! A [`Problem`] holds variables on manifolds ([`Manifold`]: any `lie` group, updated by
 //! `exp(δ)·x`, or a Euclidean vector of size 1–9) and [`Factor`]s of any arity, each with an
-//! information matrix and an optional [`RobustKernel`]. [`Problem::optimize`] minimises
+//! information matrix and an optional [`RobustKernel`]. [`Problem::optimise`] minimises
 //!
 //! `F(x) = ½ Σₖ ρₖ(rₖ(x)ᵀ Λₖ rₖ(x))`
 //!

@@ -63,7 +63,7 @@ pub enum Damping {
     Levenberg,
 }
 
-/// Options of [`Problem::optimize`].
+/// Options of [`Problem::optimise`].
 #[derive(Clone, Debug)]
 pub struct SolverOptions {
     /// The algorithm.
@@ -169,7 +169,7 @@ pub enum Termination {
     /// No step reduced the cost however strongly damped.
     NoProgress,
     /// There is nothing to optimise (no free variable in any factor).
-    NothingToOptimize,
+    NothingToOptimise,
 }
 
 impl Termination {
@@ -184,7 +184,7 @@ impl Termination {
     }
 }
 
-/// The outcome of [`Problem::optimize`].
+/// The outcome of [`Problem::optimise`].
 #[derive(Clone, Debug)]
 pub struct Summary {
     /// Cost `½Σρ` before.
@@ -238,13 +238,13 @@ pub enum SolveError {
 
 impl Problem {
     /// Minimises the cost from the current values, which hold the result afterwards.
-    pub fn optimize(&mut self, options: &SolverOptions) -> Result<Summary, SolveError> {
-        self.optimize_with(options, |_| {})
+    pub fn optimise(&mut self, options: &SolverOptions) -> Result<Summary, SolveError> {
+        self.optimise_with(options, |_| {})
     }
 
-    /// [`optimize`](Self::optimize), calling `on_iteration` after each iteration (for progress
+    /// [`optimise`](Self::optimise), calling `on_iteration` after each iteration (for progress
     /// output).
-    pub fn optimize_with(
+    pub fn optimise_with(
         &mut self,
         options: &SolverOptions,
         on_iteration: impl FnMut(&IterationStats) + Send,
@@ -255,13 +255,13 @@ impl Problem {
                     .num_threads(n.max(1))
                     .build()
                     .map_err(|e| SolveError::ThreadPool(e.to_string()))?;
-                pool.install(|| self.optimize_inner(options, on_iteration))
+                pool.install(|| self.optimise_inner(options, on_iteration))
             }
-            None => self.optimize_inner(options, on_iteration),
+            None => self.optimise_inner(options, on_iteration),
         }
     }
 
-    fn optimize_inner(
+    fn optimise_inner(
         &mut self,
         options: &SolverOptions,
         mut on_iteration: impl FnMut(&IterationStats),
@@ -327,7 +327,7 @@ impl Problem {
             linear_solver: kind,
         };
         if n == 0 {
-            summary.termination = Termination::NothingToOptimize;
+            summary.termination = Termination::NothingToOptimise;
             summary.time_total = start.elapsed();
             return Ok(summary);
         }

@@ -153,7 +153,7 @@ fn every_cholesky_organisation_finds_the_least_squares_solution() {
             function_tolerance: 1e-14,
             ..Default::default()
         };
-        p.optimize(&options).unwrap();
+        p.optimise(&options).unwrap();
         let err = max_error(&p, &vars, &solution);
         assert!(err < 1e-9, "{method:?}: error {err:e}");
     }
@@ -178,7 +178,7 @@ fn every_linear_solver_finds_the_least_squares_solution() {
                 function_tolerance: 1e-14,
                 ..Default::default()
             };
-            let summary = p.optimize(&options).unwrap();
+            let summary = p.optimise(&options).unwrap();
             let err = max_error(&p, &vars, &solution);
             assert!(
                 err < 1e-7,
@@ -271,7 +271,7 @@ fn schur_solvers_agree_with_the_full_system() {
             pcg_max_iterations: 1000,
             ..Default::default()
         };
-        let summary = p.optimize(&options).unwrap();
+        let summary = p.optimise(&options).unwrap();
         let x: Vec<f64> = cams
             .iter()
             .flat_map(|c| p.value(*c).iter().copied().collect::<Vec<_>>())
@@ -298,7 +298,7 @@ fn schur_solvers_agree_with_the_full_system() {
 fn elimination_of_a_kind_that_is_not_block_diagonal_is_refused() {
     let (mut p, _, _, _) = linear_problem(1, 5, false);
     p.set_eliminated::<Vector3<f64>>(true);
-    let err = p.optimize(&SolverOptions::default()).unwrap_err();
+    let err = p.optimise(&SolverOptions::default()).unwrap_err();
     assert!(err.to_string().contains("cannot be eliminated"), "{err}");
 }
 
@@ -306,7 +306,7 @@ fn elimination_of_a_kind_that_is_not_block_diagonal_is_refused() {
 fn covariance_is_the_inverse_of_the_information_for_a_linear_problem() {
     let (mut p, vars, _, h) = linear_problem(5, 6, true);
     // Exact answer: the inverse of H = Σ AᵀΛA (a linear problem's H does not depend on x).
-    p.optimize(&SolverOptions::default()).unwrap();
+    p.optimise(&SolverOptions::default()).unwrap();
     let keys: Vec<VarKey> = vars.iter().map(|v| v.key()).collect();
     let cov = p.covariance(&keys).unwrap();
     let expected = h.try_inverse().unwrap();
@@ -367,7 +367,7 @@ fn covariance_matches_monte_carlo_of_a_linear_gaussian_problem() {
         )
         .unwrap();
     }
-    p.optimize(&SolverOptions::default()).unwrap();
+    p.optimise(&SolverOptions::default()).unwrap();
     let cov = p.covariance(&[x.key()]).unwrap();
     let expected = (&lambdas[0] + &lambdas[1] + &lambdas[2])
         .try_inverse()
@@ -419,7 +419,7 @@ fn manifold_prior_converges_to_its_measurement_from_far_away() {
         )
         .unwrap();
         let summary = p
-            .optimize(&SolverOptions {
+            .optimise(&SolverOptions {
                 linear_solver: solver,
                 function_tolerance: 1e-15,
                 ..Default::default()
@@ -529,9 +529,9 @@ fn robust_kernels_resist_outliers() {
             )
             .unwrap();
         }
-        q.optimize(&SolverOptions::default()).unwrap();
+        q.optimise(&SolverOptions::default()).unwrap();
         p.values_mut().set(ab, start.unwrap_or(*q.value(ab0)));
-        p.optimize(&SolverOptions {
+        p.optimise(&SolverOptions {
             max_iterations: 200,
             ..Default::default()
         })
@@ -622,14 +622,14 @@ fn gauge_freedom_is_handled_by_fixing_or_by_damping() {
     };
     // Fixed first pose: the truth is recovered exactly.
     let (mut p, vars) = build(true, &mut rng);
-    let s = p.optimize(&SolverOptions::default()).unwrap();
+    let s = p.optimise(&SolverOptions::default()).unwrap();
     assert!(s.final_cost < 1e-20, "{}", s.final_cost);
     for (v, t) in vars.iter().zip(&truth) {
         assert!(p.value(*v).compose(&t.inverse()).log().amax() < 1e-9);
     }
     // Nothing fixed: LM damping alone handles the gauge; relative poses are recovered.
     let (mut p, vars) = build(false, &mut rng);
-    let s = p.optimize(&SolverOptions::default()).unwrap();
+    let s = p.optimise(&SolverOptions::default()).unwrap();
     assert!(s.final_cost < 1e-18, "{}", s.final_cost);
     let rel = |a: &Se3, b: &Se3| b.compose(&a.inverse());
     for i in 1..10 {
@@ -639,7 +639,7 @@ fn gauge_freedom_is_handled_by_fixing_or_by_damping() {
     }
     // Gauss-Newton without a fixed gauge faces a singular system and says so.
     let (mut p, _) = build(false, &mut rng);
-    let r = p.optimize(&SolverOptions {
+    let r = p.optimise(&SolverOptions {
         algorithm: Algorithm::GaussNewton,
         linear_solver: LinearSolver::SparseCholesky,
         ..Default::default()
@@ -745,7 +745,7 @@ fn undefined_residuals_are_rejected_observations_not_nans() {
     let x = p.add_variable(nalgebra::Vector1::new(3.0));
     p.add_factor(Inverse { x }, Information::Identity, None)
         .unwrap();
-    let s = p.optimize(&SolverOptions::default()).unwrap();
+    let s = p.optimise(&SolverOptions::default()).unwrap();
     assert!(
         (p.value(x)[0] - 0.5).abs() < 1e-6,
         "{:?} {:?}",
@@ -757,7 +757,7 @@ fn undefined_residuals_are_rejected_observations_not_nans() {
     let y = q.add_variable(nalgebra::Vector1::new(-1.0));
     q.add_factor(Inverse { x: y }, Information::Identity, None)
         .unwrap();
-    let s = q.optimize(&SolverOptions::default()).unwrap();
+    let s = q.optimise(&SolverOptions::default()).unwrap();
     assert_eq!(s.invalid_factors, 1);
     assert!(q.value(y)[0].is_finite() && s.final_cost.is_finite());
 }
@@ -766,7 +766,7 @@ fn undefined_residuals_are_rejected_observations_not_nans() {
 fn iteration_and_time_budgets_stop_the_solver() {
     let (mut p, _, _, _) = linear_problem(8, 30, true);
     let s = p
-        .optimize(&SolverOptions {
+        .optimise(&SolverOptions {
             max_iterations: 1,
             initial_lambda: 1e3,
             ..Default::default()
@@ -776,7 +776,7 @@ fn iteration_and_time_budgets_stop_the_solver() {
     assert_eq!(s.termination, Termination::MaxIterations);
     let (mut p, _, _, _) = linear_problem(8, 30, true);
     let s = p
-        .optimize(&SolverOptions {
+        .optimise(&SolverOptions {
             max_time: Some(std::time::Duration::ZERO),
             ..Default::default()
         })
@@ -791,7 +791,7 @@ fn results_do_not_depend_on_the_thread_count() {
     for threads in [1, 2, 4] {
         let (mut p, vars, _, _) = linear_problem(21, 60, true);
         let s = p
-            .optimize(&SolverOptions {
+            .optimise(&SolverOptions {
                 threads: Some(threads),
                 ..Default::default()
             })
@@ -843,7 +843,7 @@ fn rotation_averaging_on_so3() {
             .unwrap();
         }
     }
-    p.optimize(&SolverOptions {
+    p.optimise(&SolverOptions {
         function_tolerance: 1e-14,
         ..Default::default()
     })

@@ -779,7 +779,7 @@ pub fn jacobian_convergence(
                 .map_err(|e| ScaleDriftError::Correction(e.into()))?;
             let summary = pg
                 .problem
-                .optimize(&options)
+                .optimise(&options)
                 .map_err(|e| ScaleDriftError::Correction(e.into()))?;
             let n = summary.iterations.len().max(1) as f64;
             let trace: Vec<(f64, f64)> = summary

@@ -479,13 +479,13 @@ fn run_ba<C: InverseDepthCamera<N>, const N: usize>(
     points: &[(usize, Vector3<f64>)],
     frames: &[Vec<(usize, SVector<f64, N>)>],
     options: BaSlamOptions,
-    initializer: Option<&dyn slam::ba_slam::PointInitializer<C>>,
+    initialiser: Option<&dyn slam::ba_slam::PointInitialiser<C>>,
     error: impl Fn(&Se3) -> Option<Vec<f64>>,
 ) -> Option<PipelineResult> {
     let start = CpuStopwatch::start();
     let mut ba = BaSlam::with_map(camera, SIGMA, options, *t0, points, &frames[0]);
     for i in 1..frames.len() {
-        ba.step(&frames[i - 1], &frames[i], initializer);
+        ba.step(&frames[i - 1], &frames[i], initialiser);
     }
     let total = start.elapsed();
     Some(PipelineResult {
@@ -1148,7 +1148,7 @@ mod diagnose {
                 if estimator == Estimator::FilterKeepingPoses {
                     filter.current_to_anchor().expect("a current pose");
                 } else {
-                    filter.marginalize_current().expect("positive definite");
+                    filter.marginalise_current().expect("positive definite");
                 }
             }
             let obs: Vec<_> = selected

@@ -34,7 +34,7 @@ fn full_ba_converges_to_the_noise_floor_with_either_gauge() {
         .unwrap();
         let s = ba
             .problem
-            .optimize(&SolverOptions {
+            .optimise(&SolverOptions {
                 max_iterations: 50,
                 ..Default::default()
             })
@@ -79,7 +79,7 @@ fn motion_only_and_structure_only_recover_what_is_free() {
         function_tolerance: 1e-14,
         ..Default::default()
     };
-    ba.problem.optimize(&exact).unwrap();
+    ba.problem.optimise(&exact).unwrap();
     for (est, truth) in ba.camera_from_world().iter().zip(&scene.camera_from_world) {
         let err = est.compose(&truth.inverse()).log();
         assert!(err.amax() < 1e-8, "pose error {err:?}");
@@ -101,7 +101,7 @@ fn motion_only_and_structure_only_recover_what_is_free() {
         &Gauge::Damping,
     )
     .unwrap();
-    ba.problem.optimize(&exact).unwrap();
+    ba.problem.optimise(&exact).unwrap();
     let max_point_error = ba
         .points_world()
         .iter()
@@ -146,7 +146,7 @@ fn schur_and_full_solvers_reach_the_same_optimum() {
         }
         let s = ba
             .problem
-            .optimize(&SolverOptions {
+            .optimise(&SolverOptions {
                 linear_solver: solver,
                 function_tolerance: 1e-12,
                 pcg_tolerance: 1e-10,
@@ -191,7 +191,7 @@ fn bal_form_of_a_scene_converges_like_the_pinhole_form() {
     assert!(ba.rejected.is_empty());
     let s = ba
         .problem
-        .optimize(&SolverOptions {
+        .optimise(&SolverOptions {
             max_iterations: 50,
             ..Default::default()
         })
@@ -244,7 +244,7 @@ fn bad_observations_are_rejected_and_never_produce_nans() {
     );
     let s = ba
         .problem
-        .optimize(&SolverOptions {
+        .optimise(&SolverOptions {
             max_iterations: 20,
             ..Default::default()
         })

@@ -7,7 +7,7 @@
 //! (eq. 4.14; for a monocular camera the remaining scale gauge is left to the
 //! Levenberg-Marquardt damping, §4.5.3). New stereo points are placed from their measurement in
 //! keyframe `i−1`; new monocular points are triangulated between keyframes `i−1` and `i` by a
-//! pluggable [`PointInitializer`] (the thesis's independent inverse-depth filters, §3.4.4).
+//! pluggable [`PointInitialiser`] (the thesis's independent inverse-depth filters, §3.4.4).
 
 use crate::ba::{
     AnchorObservation, AnchoredObservation, BaMode, BundleAdjustment, Gauge, Observation,
@@ -43,7 +43,7 @@ pub fn motion_only<P: Projector<N> + Clone, const N: usize>(
     ) else {
         return *initial;
     };
-    match ba.problem.optimize(&solver_options(iterations)) {
+    match ba.problem.optimise(&solver_options(iterations)) {
         Ok(_) => ba.camera_from_world()[0],
         Err(_) => *initial,
     }
@@ -58,13 +58,13 @@ fn solver_options(iterations: usize) -> lsq::SolverOptions {
 }
 
 /// Triangulates a new monocular point between two keyframes (thesis §3.4.4).
-pub trait PointInitializer<C>: Sync {
+pub trait PointInitialiser<C>: Sync {
     /// The world point of a feature measured `z_anchor` from `anchor_from_world` and
     /// `z_observer` from `observer_from_world` (poses known), starting at inverse depth
     /// `initial_inverse_depth` in the anchor frame; `None` if it cannot be placed (e.g.
     /// behind a camera).
     #[allow(clippy::too_many_arguments)]
-    fn initialize(
+    fn initialise(
         &self,
         camera: &C,
         sigma: f64,
@@ -87,8 +87,8 @@ pub struct TwoViewInverseDepth {
     pub iterations: usize,
 }
 
-impl<C: InverseDepthCamera<2>> PointInitializer<C> for TwoViewInverseDepth {
-    fn initialize(
+impl<C: InverseDepthCamera<2>> PointInitialiser<C> for TwoViewInverseDepth {
+    fn initialise(
         &self,
         camera: &C,
         sigma: f64,
@@ -130,7 +130,7 @@ impl<C: InverseDepthCamera<2>> PointInitializer<C> for TwoViewInverseDepth {
                 None,
             )
             .ok()?;
-        let summary = problem.optimize(&solver_options(self.iterations)).ok()?;
+        let summary = problem.optimise(&solver_options(self.iterations)).ok()?;
         if summary.invalid_factors > 0 {
             return None;
         }
@@ -159,7 +159,7 @@ pub struct BaSlamOptions {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BaSlamCost {
     /// Feature replacement and initialisation.
-    pub initialization: Duration,
+    pub initialisation: Duration,
     /// Motion-only BA.
     pub motion: Duration,
     /// Structure-only BA.
@@ -171,7 +171,7 @@ pub struct BaSlamCost {
 impl BaSlamCost {
     /// The whole pipeline.
     pub fn total(&self) -> Duration {
-        self.initialization + self.motion + self.structure + self.full
+        self.initialisation + self.motion + self.structure + self.full
     }
 }
 
@@ -273,13 +273,13 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
     }
 
     /// One keyframe of thesis Alg. 3: `previous` and `frame` are the measurements of keyframes
-    /// `i−1` and `i`; monocular cameras need an `initializer` for new points (without one,
+    /// `i−1` and `i`; monocular cameras need an `initialiser` for new points (without one,
     /// lost features are not replaced). Returns the estimate of `T_i`.
     pub fn step(
         &mut self,
         previous: &FrameMeasurements<N>,
         frame: &FrameMeasurements<N>,
-        initializer: Option<&dyn PointInitializer<C>>,
+        initialiser: Option<&dyn PointInitialiser<C>>,
     ) -> Se3 {
         let i = self.keyframes.len();
         let t_prev = self.current();
@@ -315,7 +315,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
             }
         }
         self.tracked = tracked;
-        self.cost.initialization += start.elapsed();
+        self.cost.initialisation += start.elapsed();
 
         // 2. Motion-only BA from T_{i−1}.
         let start = CpuStopwatch::start();
@@ -354,10 +354,10 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         if !self.pending.is_empty() {
             let q0 = self.median_inverse_depth(&t_prev);
             for (id, z_prev) in std::mem::take(&mut self.pending) {
-                let placed = find(frame, id).zip(initializer).and_then(|(z, init)| {
+                let placed = find(frame, id).zip(initialiser).and_then(|(z, init)| {
                     let za = Vector2::new(z_prev[0], z_prev[1]);
                     let zo = Vector2::new(z[0], z[1]);
-                    init.initialize(&self.camera, self.sigma, &t_prev, &za, &t_i, &zo, q0)
+                    init.initialise(&self.camera, self.sigma, &t_prev, &za, &t_i, &zo, q0)
                         .map(|y| (y, z))
                 });
                 match placed {
@@ -370,7 +370,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
                 }
             }
         }
-        self.cost.initialization += start.elapsed();
+        self.cost.initialisation += start.elapsed();
 
         // 3. Structure-only BA, 4. full BA with T_0 fixed.
         let start = CpuStopwatch::start();
@@ -397,7 +397,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         };
         if ba
             .problem
-            .optimize(&solver_options(self.options.iterations))
+            .optimise(&solver_options(self.options.iterations))
             .is_ok()
         {
             self.keyframes = ba.camera_from_world();

@@ -108,7 +108,7 @@ pub fn bootstrap(
     };
     let z_b1 = obs(b1);
     filter.begin_frame(1, Se3::identity())?;
-    filter.optimize(&z_b1, &settings)?;
+    filter.optimise(&z_b1, &settings)?;
     let (_, t_b1) = filter.current().expect("current set");
     let parallax = median_parallax(&filter, &features, &t_b1);
     if parallax.is_nan() || parallax < options.min_parallax {
@@ -125,7 +125,7 @@ pub fn bootstrap(
         })?;
     let (_, b1_from_world) = filter.current().expect("current set");
     filter.propagate(&z_b1);
-    filter.marginalize_current_unit_translation()?;
+    filter.marginalise_current_unit_translation()?;
     let z_0 = obs(f0);
     let t0 = filter.motion_from_map_prior(&z_0, &b1_from_world, options.pose_iterations, false)?;
     filter.begin_frame(2, t0)?;

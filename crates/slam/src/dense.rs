@@ -66,7 +66,7 @@ pub fn spd_inverse(a: &DMatrix<f64>) -> Option<DMatrix<f64>> {
 /// Marginalises the scalar indices `remove` out of the information matrix `lambda`
 /// (thesis eq. 4.25): `Λ_rr − Λ_rm·Λ_mm⁻¹·Λ_mr` over the kept indices in their order. `None`
 /// if `Λ_mm` is not positive definite.
-pub fn marginalize(lambda: &DMatrix<f64>, remove: &[usize]) -> Option<DMatrix<f64>> {
+pub fn marginalise(lambda: &DMatrix<f64>, remove: &[usize]) -> Option<DMatrix<f64>> {
     let n = lambda.nrows();
     let mut removed = vec![false; n];
     for &r in remove {
@@ -110,7 +110,7 @@ mod tests {
         let l = spd(9, 3);
         let keep = [0usize, 2, 3, 5, 8];
         let remove = [1usize, 4, 6, 7];
-        let m = marginalize(&l, &remove).unwrap();
+        let m = marginalise(&l, &remove).unwrap();
         let cov = spd_inverse(&l).unwrap();
         let cov_kept = cov.select_rows(&keep).select_columns(&keep);
         let expected = spd_inverse(&cov_kept).unwrap();

@@ -758,7 +758,7 @@ impl DoubleWindowOptimiser {
             }
             let summary = dwo
                 .problem
-                .optimize(&options(self.params.structure_iterations))?;
+                .optimise(&options(self.params.structure_iterations))?;
             stats.cost_before = summary.initial_cost;
             for (v, fixed) in dwo.poses.values().zip(was_fixed) {
                 dwo.problem.set_fixed(v.key(), fixed);
@@ -769,7 +769,7 @@ impl DoubleWindowOptimiser {
         if !dwo.points.is_empty() {
             dwo.problem.set_eliminated::<Vector3<f64>>(true);
         }
-        let summary = dwo.problem.optimize(&options(self.params.iterations))?;
+        let summary = dwo.problem.optimise(&options(self.params.iterations))?;
         if self.params.structure_iterations == 0 || dwo.points.is_empty() {
             stats.cost_before = summary.initial_cost;
         }

@@ -464,7 +464,7 @@ impl MonoExplorer {
         )
         .map_err(|e| e.to_string())?;
         ba.problem
-            .optimize(&solver(20))
+            .optimise(&solver(20))
             .map_err(|e| e.to_string())?;
         let poses = ba.camera_from_world();
         let scale = poses[1].translation().norm();
@@ -640,7 +640,7 @@ impl MonoExplorer {
                 .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
         }
         problem
-            .optimize(&solver(self.config.tracking_iterations))
+            .optimise(&solver(self.config.tracking_iterations))
             .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
         Ok(*problem.value(pose))
     }
@@ -793,7 +793,7 @@ impl MonoExplorer {
         }
         problem.set_eliminated::<Vector3<f64>>(true);
         problem
-            .optimize(&solver(self.config.ba_iterations))
+            .optimise(&solver(self.config.ba_iterations))
             .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
         for (wi, &k) in window.iter().enumerate() {
             let t = *problem.value(pose_vars[wi]);

@@ -10,15 +10,15 @@
 //! One time step (thesis Alg. 5):
 //! 1. either the previous pose becomes an anchor ([`GaussNewtonFilter::current_to_anchor`]) and
 //!    the points that left the view are marginalised and replaced by new ones anchored there
-//!    ([`GaussNewtonFilter::marginalize_points`], [`GaussNewtonFilter::add_point`]), or the
-//!    previous pose is marginalised ([`GaussNewtonFilter::marginalize_current`], eq. 4.25);
+//!    ([`GaussNewtonFilter::marginalise_points`], [`GaussNewtonFilter::add_point`]), or the
+//!    previous pose is marginalised ([`GaussNewtonFilter::marginalise_current`], eq. 4.25);
 //! 2. the new pose is predicted from the map, by motion-only BA (eq. 4.15,
 //!    [`GaussNewtonFilter::motion_only_ba`]) or from the Gaussian map prior (thesis Alg. 6,
 //!    [`GaussNewtonFilter::motion_from_map_prior`]);
 //! 3. the new pose enters with zero information (no motion prior, eq. 4.20,
 //!    [`GaussNewtonFilter::begin_frame`]) and the joint estimate minimises
 //!    `χ²(Φ_i, T_i) = (Φ_i ⊖ Φ_{i−1})ᵀ Λ_{Φ_{i−1}} (Φ_i ⊖ Φ_{i−1}) + Σ_j d_ijᵀ Λ_z d_ij`
-//!    (eq. 4.18) by Levenberg-Marquardt ([`GaussNewtonFilter::optimize`]), with `⊖` the
+//!    (eq. 4.18) by Levenberg-Marquardt ([`GaussNewtonFilter::optimise`]), with `⊖` the
 //!    `SE(3)` difference `log(T·T₀⁻¹)` (eq. 4.19) on poses and subtraction on points;
 //! 4. the information is updated at the new estimate, `Λ_i = Λ_{i−1} + Dᵀ Σ_z⁻¹ D` (eq. 4.21,
 //!    thesis Alg. 4, [`GaussNewtonFilter::propagate`]).
@@ -27,7 +27,7 @@
 
 use crate::ba::{Observation, Projector, inverse_depth_to_point, linearize_anchored};
 use crate::ba_slam::motion_only;
-use crate::dense::{SpdFactor, cholesky_solve_in_place, marginalize, spd_inverse};
+use crate::dense::{SpdFactor, cholesky_solve_in_place, marginalise, spd_inverse};
 use geom::{PinholeCamera, StereoCamera};
 use lie::{LieGroup, Se3};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector3, Vector6};
@@ -386,13 +386,13 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     }
 
     /// Marginalises the current pose out of the state (eq. 4.25).
-    pub fn marginalize_current(&mut self) -> Result<(), FilterError> {
+    pub fn marginalise_current(&mut self) -> Result<(), FilterError> {
         if self.current.is_none() {
             return Err(FilterError::CurrentPose("no current pose to marginalise"));
         }
         let o = self.current_offset();
         let remove: Vec<usize> = (o..o + 6).collect();
-        self.info = marginalize(&self.info, &remove)
+        self.info = marginalise(&self.info, &remove)
             .ok_or(FilterError::NotPositiveDefinite("current pose"))?;
         self.current = None;
         Ok(())
@@ -420,7 +420,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     }
 
     /// Marginalises the given points out of the state (ids not in the state are ignored).
-    pub fn marginalize_points(&mut self, ids: &[usize]) -> Result<(), FilterError> {
+    pub fn marginalise_points(&mut self, ids: &[usize]) -> Result<(), FilterError> {
         let mut remove_points: Vec<usize> = ids
             .iter()
             .filter_map(|id| self.index.get(id))
@@ -439,7 +439,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
             })
             .collect();
         self.info =
-            marginalize(&self.info, &remove).ok_or(FilterError::NotPositiveDefinite("points"))?;
+            marginalise(&self.info, &remove).ok_or(FilterError::NotPositiveDefinite("points"))?;
         let mut k = 0;
         self.points.retain(|_| {
             let keep = remove_points.binary_search(&k).is_err();
@@ -451,7 +451,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     }
 
     /// Marginalises anchor poses that no point uses any more.
-    pub fn marginalize_unused_anchors(&mut self) -> Result<(), FilterError> {
+    pub fn marginalise_unused_anchors(&mut self) -> Result<(), FilterError> {
         let unused: Vec<usize> = (0..self.anchors.len())
             .filter(|&k| {
                 let f = self.anchors[k].frame;
@@ -469,7 +469,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
             })
             .collect();
         self.info =
-            marginalize(&self.info, &remove).ok_or(FilterError::NotPositiveDefinite("anchors"))?;
+            marginalise(&self.info, &remove).ok_or(FilterError::NotPositiveDefinite("anchors"))?;
         let mut k = 0;
         self.anchors.retain(|_| {
             let keep = !unused.contains(&k);
@@ -634,13 +634,13 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     /// The joint estimate of map and current pose (eq. 4.18) by Levenberg-Marquardt with
     /// Marquardt damping, starting from and regularised towards the current state; the
     /// information is not changed (see [`propagate`](Self::propagate)).
-    pub fn optimize(
+    pub fn optimise(
         &mut self,
         observations: &[(usize, SVector<f64, N>)],
         settings: &LmSettings,
     ) -> Result<UpdateSummary, FilterError> {
         if self.current.is_none() {
-            return Err(FilterError::CurrentPose("optimize needs a current pose"));
+            return Err(FilterError::CurrentPose("optimise needs a current pose"));
         }
         let prior = self.snapshot();
         let n = self.dim();
@@ -729,14 +729,14 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
         }
     }
 
-    /// The joint filter update: [`optimize`](Self::optimize) then
+    /// The joint filter update: [`optimise`](Self::optimise) then
     /// [`propagate`](Self::propagate).
     pub fn update(
         &mut self,
         observations: &[(usize, SVector<f64, N>)],
         settings: &LmSettings,
     ) -> Result<UpdateSummary, FilterError> {
-        let s = self.optimize(observations, settings)?;
+        let s = self.optimise(observations, settings)?;
         self.propagate(observations);
         Ok(s)
     }
@@ -778,7 +778,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     /// `t^⊥` (to first order `|exp(ε)·t| = 1 ⇔ v ⊥ t`), `D₅ = D₆·B`, so the blocks become
     /// `Bᵀ·Λ_cc·B` and `Λ_xc·B`. The remaining map information has full rank and carries the
     /// scale prior `|t| = 1`.
-    pub fn marginalize_current_unit_translation(&mut self) -> Result<(), FilterError> {
+    pub fn marginalise_current_unit_translation(&mut self) -> Result<(), FilterError> {
         let (_, t) = self
             .current
             .ok_or(FilterError::CurrentPose("no current pose to marginalise"))?;
@@ -807,7 +807,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
         let reduced = tr.transpose() * &self.info * &tr;
         let remove: Vec<usize> = (c..c + 5).collect();
         self.info =
-            marginalize(&reduced, &remove).ok_or(FilterError::NotPositiveDefinite("5-DoF pose"))?;
+            marginalise(&reduced, &remove).ok_or(FilterError::NotPositiveDefinite("5-DoF pose"))?;
         self.current = None;
         Ok(())
     }

@@ -46,7 +46,7 @@ pub struct FilterSlamOptions {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FilterSlamCost {
     /// Marginalisation and feature replacement.
-    pub marginalization: Duration,
+    pub marginalisation: Duration,
     /// Pose prediction.
     pub motion: Duration,
     /// Joint update and information update (the "joint filtering step" of thesis §4.6.5).
@@ -56,13 +56,13 @@ pub struct FilterSlamCost {
 impl FilterSlamCost {
     /// The whole pipeline.
     pub fn total(&self) -> Duration {
-        self.marginalization + self.motion + self.update
+        self.marginalisation + self.motion + self.update
     }
 
     /// The joint filtering steps (marginalisation, joint update, information update): what
     /// thesis §4.6.5 compares with the joint BA updates.
     pub fn joint(&self) -> Duration {
-        self.marginalization + self.update
+        self.marginalisation + self.update
     }
 }
 
@@ -152,7 +152,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
         let (kept, lost) = split_lost(&self.tracked, frame);
         if lost.is_empty() {
             if self.filter.current().is_some() {
-                self.filter.marginalize_current()?;
+                self.filter.marginalise_current()?;
             }
         } else {
             let anchor = if self.filter.current().is_some() {
@@ -161,7 +161,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
             } else {
                 Anchor::Origin
             };
-            self.filter.marginalize_points(&lost)?;
+            self.filter.marginalise_points(&lost)?;
             let q0 = self.median_inverse_depth(&t_prev);
             let used = &self.used;
             let new = select_replacements(
@@ -196,9 +196,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
                 }
             }
             self.tracked = tracked;
-            self.filter.marginalize_unused_anchors()?;
+            self.filter.marginalise_unused_anchors()?;
         }
-        self.cost.marginalization += start.elapsed();
+        self.cost.marginalisation += start.elapsed();
         Ok(self
             .tracked
             .iter()

@@ -455,7 +455,7 @@ impl LoopMatches<'_> {
         }
         problem.set_eliminated::<Vector3<f64>>(true);
         problem
-            .optimize(&SolverOptions {
+            .optimise(&SolverOptions {
                 max_iterations: config.refine_iterations,
                 threads: Some(1),
                 ..SolverOptions::default()
@@ -619,7 +619,7 @@ pub fn correct_pose_graph(
         CorrectionGroup::Sim3 => {
             let (poses, constraints) = sim3_pose_graph(keyframe_poses, loops);
             let mut pg = PoseGraphProblem::with_jacobian(&poses, &constraints, &[0], jacobian)?;
-            let summary = pg.problem.optimize(options)?;
+            let summary = pg.problem.optimise(options)?;
             let similarities = pg.camera_from_world();
             Ok(Correction {
                 camera_from_world: similarities.iter().map(rigid_from_similarity).collect(),
@@ -631,7 +631,7 @@ pub fn correct_pose_graph(
             let constraints = se3_pose_graph(keyframe_poses, loops);
             let mut pg =
                 PoseGraphProblem::with_jacobian(keyframe_poses, &constraints, &[0], jacobian)?;
-            let summary = pg.problem.optimize(options)?;
+            let summary = pg.problem.optimise(options)?;
             let poses = pg.camera_from_world();
             Ok(Correction {
                 similarities: poses.iter().map(Sim3::from_se3).collect(),
@@ -710,7 +710,7 @@ pub fn refine_map(
         BaMode::StructureOnly,
         &Gauge::FixPoses(vec![]),
     )?;
-    ba.problem.optimize(options)?;
+    ba.problem.optimise(options)?;
     let (mut poses, mut pts) = (ba.camera_from_world(), ba.points_world());
     if full {
         let mut ba = BundleAdjustment::new(
@@ -723,7 +723,7 @@ pub fn refine_map(
             BaMode::Full,
             &Gauge::FixPoses(vec![0, 1]),
         )?;
-        ba.problem.optimize(options)?;
+        ba.problem.optimise(options)?;
         poses = ba.camera_from_world();
         pts = ba.points_world();
     }

@@ -110,7 +110,7 @@ pub fn estimate_pose<P: Projector<N> + Clone, const N: usize>(
         ..SolverOptions::default()
     };
     ba.problem
-        .optimize(&options)
+        .optimise(&options)
         .map_err(|e| RegistrationError::Solver(e.to_string()))?;
     let relative: Se3 = ba.camera_from_world()[0];
     let chi2 = points

@@ -102,7 +102,7 @@ fn converged_joint_update_equals_batch_ba() {
         function_tolerance: 0.0,
         ..LmSettings::with_iterations(30)
     };
-    filter.optimize(&obs, &settings).unwrap();
+    filter.optimise(&obs, &settings).unwrap();
 
     let mut problem = Problem::new();
     let origin = problem.add_variable(Se3::identity());
@@ -144,7 +144,7 @@ fn converged_joint_update_equals_batch_ba() {
             .unwrap();
     }
     problem
-        .optimize(&SolverOptions {
+        .optimise(&SolverOptions {
             max_iterations: 50,
             function_tolerance: 1e-15,
             ..Default::default()
@@ -271,7 +271,7 @@ fn pose_from_the_map_prior_recovers_the_pose() {
     filter
         .update(&obs(1), &LmSettings::with_iterations(3))
         .unwrap();
-    filter.marginalize_current().unwrap();
+    filter.marginalise_current().unwrap();
     let start = perturb(&truth[2], &mut rng, 0.03);
     for exact in [false, true] {
         let t = filter

@@ -120,7 +120,7 @@ fn ten_thousand_nodes_optimise_without_growing_memory() {
     let mut samples: Vec<(isize, usize)> = Vec::with_capacity(64);
     let summary = pg
         .problem
-        .optimize_with(&options, |_| {
+        .optimise_with(&options, |_| {
             samples.push((
                 LIVE_BYTES.load(Ordering::Relaxed),
                 ALLOCATIONS.load(Ordering::Relaxed),
