@@ -24,6 +24,7 @@
 #![allow(clippy::needless_range_loop)]
 
 mod block;
+pub mod dense;
 mod factor;
 mod kernels;
 mod linear;
@@ -37,12 +38,12 @@ mod values;
 
 pub use block::BlockSymmetric;
 pub use factor::{Factor, Information, InformationError, Jacobians, MAX_ARITY};
-pub use linear::LinearError;
+pub use linear::{CholeskyMethod, LinearError};
 pub use manifold::Manifold;
 pub use problem::{FactorId, Problem, ProblemError};
 pub use robust::RobustKernel;
 pub use solver::{
-    Algorithm, CholeskyMethod, Damping, IterationStats, LinearSolver, SolveError, SolverOptions,
-    Summary, Termination,
+    Algorithm, Damping, IterationStats, LinearSolver, SolveError, SolverOptions, Summary,
+    Termination,
 };
 pub use values::{Values, Var, VarKey};

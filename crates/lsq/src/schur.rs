@@ -10,9 +10,9 @@
 use crate::block::{BlockSymmetric, DisjointMut, invert_spd_in_place};
 use crate::kernels;
 use crate::linear::{
-    LinearError, LinearSolve, SparseCholesky, apply_block_diagonal, conjugate_gradients,
+    CholeskyMethod, LinearError, LinearSolve, SparseCholesky, apply_block_diagonal,
+    conjugate_gradients,
 };
-use crate::solver::CholeskyMethod;
 use rayon::prelude::*;
 
 /// The elimination structure, shared by both variants.

@@ -1,6 +1,6 @@
 //! Levenberg-Marquardt and Gauss-Newton on manifolds (thesis §2.2.3–2.2.4, §2.4.10).
 
-use crate::linear::{DenseCholesky, LinearError, LinearSolve, Pcg, SparseCholesky};
+use crate::linear::{CholeskyMethod, DenseCholesky, LinearError, LinearSolve, Pcg, SparseCholesky};
 use crate::problem::{Problem, ProblemError};
 use crate::schur::{SchurCholesky, SchurPcg};
 use crate::values::VarKey;
@@ -34,24 +34,6 @@ pub enum LinearSolver {
     /// Schur complement without forming the reduced system, solved by conjugate gradients with
     /// a block-Jacobi preconditioner (implicit Schur).
     SchurPcg,
-}
-
-/// How the sparse Cholesky factorisation is organised (faer offers both).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum CholeskyMethod {
-    /// Supernodal when the variables are blocks of dimension ≥ 3 on average (poses, points:
-    /// every column then sits in a dense block, so supernodes are at least that wide and the
-    /// dense kernels pay off even on very sparse graphs), otherwise faer's own choice from the
-    /// flop count per non-zero of the factor. faer's rule alone picks the simplicial variant
-    /// on sparse pose graphs such as parking-garage, where the supernodal one executes 3.4×
-    /// fewer instructions (`bench/README.md`).
-    #[default]
-    Auto,
-    /// Always simplicial (up-looking, scalar).
-    Simplicial,
-    /// Always supernodal (dense panels of columns with the same pattern; our block rows give
-    /// supernodes of at least the variable dimension).
-    Supernodal,
 }
 
 /// How the damping `D` of `(H + λD)·δ = −g` is chosen.

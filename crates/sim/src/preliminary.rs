@@ -93,7 +93,7 @@ pub fn end_pose_covariance(
             }
         }
     }
-    let cov = slam::dense::spd_inverse(&s)?;
+    let cov = lsq::dense::spd_inverse(&s)?;
     Some(cov.fixed_view::<6, 6>(dim - 6, dim - 6).into_owned())
 }
 

@@ -27,9 +27,9 @@
 
 use crate::ba::{Observation, Projector, inverse_depth_to_point, linearize_anchored};
 use crate::ba_slam::motion_only;
-use crate::dense::{SpdFactor, cholesky_solve_in_place, marginalise, spd_inverse};
 use geom::{PinholeCamera, StereoCamera};
 use lie::{LieGroup, Se3};
+use lsq::dense::{SpdFactor, cholesky_solve_in_place, marginalise, spd_inverse};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector3, Vector6};
 use std::collections::HashMap;
 

@@ -8,7 +8,6 @@ pub mod ba;
 pub mod ba_slam;
 pub mod bootstrap;
 pub mod clock;
-pub mod dense;
 pub mod dwo;
 pub mod exploration;
 pub mod feature_init;

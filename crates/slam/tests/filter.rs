@@ -241,7 +241,7 @@ fn information_after_marginalisation_equals_the_batch_marginal() {
     keys.extend(psi_vars.iter().map(|v| v.key()));
     keys.push(t2.key());
     let cov = problem.covariance(&keys).unwrap();
-    let filter_cov = slam::dense::spd_inverse(filter.information()).unwrap();
+    let filter_cov = lsq::dense::spd_inverse(filter.information()).unwrap();
     let scale = cov.amax();
     let diff = (&filter_cov - &cov).amax();
     assert!(

@@ -1,4 +1,4 @@
-//! Dense symmetric positive-definite algebra for the filter (thesis §4.4.2): Cholesky solves,
+//! Dense symmetric positive-definite algebra (used by the Gauss-Newton filter of thesis §4.4.2): Cholesky solves,
 //! inverses and Schur-complement marginalisation on `nalgebra` matrices, factorised by faer's
 //! blocked Cholesky (single-threaded).
 
