@@ -25,9 +25,14 @@ fn thread_cpu_ns() -> Option<u64> {
         .ok()
 }
 
-/// Runs `f` repeatedly (at least `min_reps` times, and for at least 1 s of CPU time when
-/// `min_reps > 1`) and returns the mean CPU milliseconds per call (wall clock if no CPU clock).
+/// Runs `f` repeatedly (at least `min_reps` times, and for at least `VISION_BENCH_BUDGET`
+/// seconds of CPU time, default 1, when `min_reps > 1`) and returns the mean CPU milliseconds
+/// per call (wall clock if no CPU clock).
 fn time_ms<T>(min_reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    let budget: f64 = std::env::var("VISION_BENCH_BUDGET")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1.0);
     let wall = Instant::now();
     let cpu0 = thread_cpu_ns();
     let mut reps = 0usize;
@@ -38,7 +43,7 @@ fn time_ms<T>(min_reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
             (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
             _ => wall.elapsed().as_secs_f64(),
         };
-        if reps >= min_reps && (min_reps <= 1 || spent >= 1.0 || reps >= 500) {
+        if reps >= min_reps && (min_reps <= 1 || spent >= budget || reps >= 500) {
             return (spent * 1e3 / reps as f64, out);
         }
     }
