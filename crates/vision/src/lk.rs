@@ -227,7 +227,7 @@ pub fn track(
 ) -> Vec<Option<[f32; 2]>> {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if crate::simd::avx2() {
             // SAFETY: the CPU supports AVX2 (checked just above).
             return unsafe { track_avx2(prev, next, points, initial, params) };
         }
