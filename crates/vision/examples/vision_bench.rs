@@ -94,10 +94,23 @@ fn main() {
                 num_features: n,
                 ..Default::default()
             };
-            let (ms, (k, _)) = time_ms(5, || {
+            let (ms, (k, d)) = time_ms(5, || {
                 vision::orb::detect_and_describe(&img, &params).expect("orb")
             });
-            println!("{}", serde_json::json!({"ms": ms, "keypoints": k.len()}));
+            // A digest of the keypoints and descriptors, to compare two builds' results.
+            let mut digest = 0xcbf2_9ce4_8422_2325u64;
+            let mut mix = |x: u64| digest = (digest ^ x).wrapping_mul(0x0100_0000_01b3);
+            for (kp, desc) in k.iter().zip(&d) {
+                mix(kp.u.to_bits() as u64);
+                mix(kp.v.to_bits() as u64);
+                mix(kp.angle.to_bits() as u64);
+                mix(kp.response.to_bits() as u64);
+                desc.iter().for_each(|&w| mix(w));
+            }
+            println!(
+                "{}",
+                serde_json::json!({"ms": ms, "keypoints": k.len(), "digest": format!("{digest:016x}")})
+            );
         }
         "lk" => {
             let i0 = load_gray_u8(arg(2)).expect("image 0");
