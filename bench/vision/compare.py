@@ -169,12 +169,17 @@ if want("speed") or want("lk"):
                 t_u.append(ours("pyrfast", f, 20, 4)["ms"])
             speed.append(("pyramid (4 levels) + FAST-9 t=20 + NMS", short, np.median(t_u), np.median(t_o),
                           "OpenCV: cv2.pyrDown (5×5 Gaussian) + FastFeatureDetector; ours: 2×2 half-sampling + fast9"))
-            t_o, t_u = [], []
+            t_o, t_u, same = [], [], True
             for f in frames:
                 img = cv2.imread(f, 0)
                 t_o.append(timed(lambda: orb.detectAndCompute(img, None))[0])
-                t_u.append(ours("orb", f, 500)["ms"])
-            speed.append(("ORB, 500 features, 8 levels × 1.2", short, np.median(t_u), np.median(t_o), "detect + describe"))
+                r = ours("orb", f, 500)
+                t_u.append(r["ms"])
+                if REF:
+                    same &= r["digest"] == ours_ref("orb", f, 500)["digest"]
+            speed.append(("ORB, 500 features, 8 levels × 1.2", short, np.median(t_u), np.median(t_o),
+                          "detect + describe" + ((", keypoints and descriptors identical to before" if same
+                                                  else ", **results differ from before**") if REF else "")))
         lk_compare(list(zip(frames[0:9], frames[1:10])), label, short)
 
     out("### Speed (CPU ms per call, mean over ≥ budget s of CPU time per frame, median over frames; ratio = ours / OpenCV)")
