@@ -6,7 +6,8 @@ use data::bal::{BalProblem, read_bal, write_bal};
 use lsq::{LinearSolver, SolverOptions};
 use nalgebra::Vector2;
 use sim::ba_scene::{CircleSceneParams, circle_scene, perturb, to_bal};
-use slam::ba::{BalAdjustment, BalCameraState};
+use slam::ba::BalAdjustment;
+use slam::factors::BalCameraState;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -88,20 +89,6 @@ fn parse_synthetic(spec: &str) -> Result<(usize, usize)> {
         bail!("--synthetic needs at least 3 cameras and 1 point");
     }
     Ok((cameras, points))
-}
-
-/// CPU time (user + system) consumed by this process so far, from `/proc/self/stat` (Linux);
-/// `None` elsewhere. Unlike wall time it is barely affected by other processes on a shared
-/// machine, so single-threaded benchmark ratios use it.
-pub fn process_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which is parenthesised and may contain spaces).
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of the full line: 12 and 13 after the name.
-    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
-    // Clock ticks per second: 100 on every Linux configuration in use (USER_HZ).
-    Some(ticks / 100.0)
 }
 
 /// Entry point of `dwslam ba`.
@@ -211,7 +198,7 @@ pub fn run(args: BaArgs) -> Result<()> {
         );
     }
     let quiet = args.quiet;
-    let cpu_before = process_cpu_seconds();
+    let cpu_before = slam::clock::process_cpu_time().map(|t| t.as_secs_f64());
     let summary = ba.problem.optimise_with(&options, |it| {
         if !quiet {
             println!(
@@ -229,7 +216,10 @@ pub fn run(args: BaArgs) -> Result<()> {
             );
         }
     })?;
-    let cpu_seconds = match (cpu_before, process_cpu_seconds()) {
+    let cpu_seconds = match (
+        cpu_before,
+        slam::clock::process_cpu_time().map(|t| t.as_secs_f64()),
+    ) {
         (Some(a), Some(b)) => Some(b - a),
         _ => None,
     };

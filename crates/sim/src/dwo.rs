@@ -39,10 +39,12 @@ use nalgebra::{SVector, Vector2, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use slam::ba::Projector;
 use slam::dwo::{ConstraintInformation, DoubleWindowOptimiser, DwoParams, DwoStats};
-use slam::graph::{KeyframeId, PointId, SlamGraph};
-use slam::registration::{self, MetricLoopParams};
+use slam::factors::Projector;
+use slam::loop_closure::{self, MetricLoopParams};
+use slam::map::{KeyframeId, PointId, SlamGraph};
+use slam::mapping;
+use slam::tracking::{self, MotionOnlyOptions};
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
@@ -417,7 +419,7 @@ pub enum RunError {
         /// Keyframe index.
         keyframe: usize,
         /// The cause.
-        source: registration::RegistrationError,
+        source: slam::loop_closure::ClosureError,
     },
     /// The optimisation failed.
     #[error("keyframe {keyframe}: {source}")]
@@ -433,7 +435,7 @@ pub enum RunError {
         /// Keyframe index.
         keyframe: usize,
         /// The cause.
-        source: slam::graph::GraphError,
+        source: slam::map::GraphError,
     },
     /// The world has fewer than two keyframes.
     #[error("a run needs at least two keyframes")]
@@ -601,7 +603,7 @@ pub fn run<C: SimCamera<N>, const N: usize>(
             keyframe: k,
             source,
         };
-        let reg_err = |source| RunError::Registration {
+        let reg_err = |source: slam::loop_closure::ClosureError| RunError::Registration {
             keyframe: k,
             source,
         };
@@ -613,7 +615,7 @@ pub fn run<C: SimCamera<N>, const N: usize>(
             None => Sim3::from_se3(&truth[0]),
             Some(r) => {
                 let mut by_world: BTreeMap<usize, PointId> = BTreeMap::new();
-                for p in registration::tracking_candidates(&graph, r) {
+                for p in tracking::tracking_candidates(&graph, r) {
                     by_world.entry(world_of[p]).or_insert(p);
                 }
                 for (w, z) in meas {
@@ -640,9 +642,16 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                             .rigid_part(),
                     )
                     .compose(&graph.pose(r).map_err(graph_err)?);
-                    registration::estimate_pose(&graph, r, &matches, &projector, &guess, sigma, 10)
-                        .map_err(reg_err)?
-                        .camera_from_world
+                    tracking::estimate_pose(
+                        &graph,
+                        r,
+                        &matches,
+                        &projector,
+                        &guess,
+                        &MotionOnlyOptions::robust(sigma),
+                    )
+                    .map_err(|e| reg_err(e.into()))?
+                    .camera_from_world
                 }
             }
         };
@@ -652,7 +661,8 @@ pub fn run<C: SimCamera<N>, const N: usize>(
         for (p, z) in &matches {
             graph.add_observation(kf, *p, *z).map_err(graph_err)?;
         }
-        registration::register_locally(&mut graph, kf, config.theta, reference).map_err(reg_err)?;
+        mapping::register_locally(&mut graph, kf, config.theta, reference)
+            .map_err(|e| reg_err(e.into()))?;
         graph.set_reference(kf).map_err(graph_err)?;
         // 3. Appearance loop closure injected by the simulator.
         let mut appearance = false;
@@ -660,11 +670,11 @@ pub fn run<C: SimCamera<N>, const N: usize>(
             // The local maps of both places (the points visible from N1 of each keyframe),
             // as the place recogniser's 3D–3D correspondences (thesis §6.4.2).
             if graph.keyframe(old).is_none() {
-                return Err(graph_err(slam::graph::GraphError::UnknownKeyframe(old)));
+                return Err(graph_err(slam::map::GraphError::UnknownKeyframe(old)));
             }
             let local_map = |g: &SlamGraph<N>, k: KeyframeId| -> BTreeMap<usize, PointId> {
                 let mut m = BTreeMap::new();
-                for p in registration::tracking_candidates(g, k) {
+                for p in tracking::tracking_candidates(g, k) {
                     m.entry(world_of[p]).or_insert(p);
                 }
                 m
@@ -681,7 +691,7 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                     Some(_) => None,
                     None => camera
                         .inverse_depth_from_one_view(z)
-                        .map(|psi| slam::ba::inverse_depth_to_point(&psi)),
+                        .map(|psi| slam::factors::inverse_depth_to_point(&psi)),
                 };
                 if let (Some(x), Ok(y)) = (here, graph.point_in_frame(p_old, old)) {
                     target.push(x);
@@ -696,14 +706,14 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                     align_se3(&target, &source).ok().map(|t| Sim3::from_se3(&t))
                 };
                 if let Some(query_from_matched) = relative {
-                    registration::close_appearance_loop(
+                    loop_closure::close_appearance_loop(
                         &mut graph,
                         kf,
                         old,
                         query_from_matched,
                         &old_matches,
                     )
-                    .map_err(reg_err)?;
+                    .map_err(|e| reg_err(e.into()))?;
                     matched_world.extend(old_matches.iter().map(|(p, _)| world_of[*p]));
                     appearance = true;
                 }
@@ -719,7 +729,7 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                 .map(|(w, z)| (*w, *z))
                 .collect();
             let mut found: BTreeMap<usize, (PointId, SVector<f64, N>)> = BTreeMap::new();
-            for p in registration::loop_candidates(&graph, kf, config.n2) {
+            for p in loop_closure::loop_candidates(&graph, kf, config.n2) {
                 let w = world_of[p];
                 let Some(z) = wanted.get(&w) else { continue };
                 if found.contains_key(&w) {
@@ -737,7 +747,7 @@ pub fn run<C: SimCamera<N>, const N: usize>(
                 }
             }
             let loop_matches: Vec<(PointId, SVector<f64, N>)> = found.values().copied().collect();
-            let closed = registration::close_metric_loops(
+            let closed = loop_closure::close_metric_loops(
                 &mut graph,
                 kf,
                 &loop_matches,

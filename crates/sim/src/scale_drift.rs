@@ -23,10 +23,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use slam::exploration::{ExplorationConfig, Keyframe, MonoExplorer, TrackId};
-use slam::loop_closure::{
-    CorrectionGroup, LoopClosureConfig, LoopEdge, correct_points, correct_pose_graph,
-    estimate_loop_constraint, matched_views, refine_map, sim3_pose_graph,
+use slam::loop_closure::constraint::matched_views;
+use slam::loop_closure::correction::{
+    correct_points, correct_pose_graph, refine_map, sim3_pose_graph,
 };
+use slam::loop_closure::{CorrectionGroup, LoopClosureConfig, LoopEdge, estimate_loop_constraint};
 use slam::pose_graph::{PoseGraphJacobian, PoseGraphProblem};
 use std::collections::HashSet;
 use std::time::Instant;

@@ -6,7 +6,8 @@ use lie::{LieGroup, Se3};
 use nalgebra::{SVector, Vector2, Vector3};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use slam::ba::{Observation, Projector};
+use slam::ba::Observation;
+use slam::factors::Projector;
 
 /// A camera that sees a point when it projects inside the image and lies within a depth
 /// range, and measures it with isotropic Gaussian noise of `sigma` pixels.

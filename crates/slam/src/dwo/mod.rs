@@ -38,15 +38,15 @@
 //! Sim(3) loop-closure constraint and the re-initialisation along the spanning tree (thesis
 //! §6.2.7).
 //!
-//! **Threads** (see [`crate::graph`]): [`DoubleWindowOptimiser::optimise_shared`] plans and
+//! **Threads** (see [`crate::map`]): [`DoubleWindowOptimiser::optimise_shared`] plans and
 //! builds under a read lock, optimises with no lock held and writes back under a short write
 //! lock.
 
-use crate::ba::{
+use crate::factors::{
     AnchorObservation, AnchoredLinearization, AnchoredObservation, AnchoredPose, Projector,
     inverse_depth_to_point, linearize_anchored,
 };
-use crate::graph::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph};
+use crate::map::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph};
 use lie::{LieGroup, LogJacobian, Sim3, log_jacobian_factors};
 use lsq::{
     Factor, Information, Jacobians, Manifold, Problem, RobustKernel, SolverOptions, Values, Var,
@@ -339,7 +339,7 @@ pub enum DwoError {
     NoReference,
     /// A graph operation failed.
     #[error(transparent)]
-    Graph(#[from] crate::graph::GraphError),
+    Graph(#[from] crate::map::GraphError),
     /// The least-squares problem refused a factor.
     #[error(transparent)]
     Problem(#[from] lsq::ProblemError),
@@ -603,7 +603,7 @@ impl DoubleWindowOptimiser {
         for &pid in &plan.points {
             let pt = graph
                 .point(pid)
-                .ok_or(crate::graph::GraphError::UnknownPoint(pid))?;
+                .ok_or(crate::map::GraphError::UnknownPoint(pid))?;
             let psi = problem.add_variable(pt.inverse_depth);
             points.push((pid, psi));
             for &o in pt.observers() {
@@ -697,7 +697,7 @@ impl DoubleWindowOptimiser {
             let pt = graph.point(pid)?;
             let y = pose(pt.anchor)?
                 .inverse()
-                .act(&crate::ba::inverse_depth_to_point(&pt.inverse_depth));
+                .act(&crate::factors::inverse_depth_to_point(&pt.inverse_depth));
             let mut h_yy = Matrix3::<f64>::zeros();
             let mut h_jy = SMatrix::<f64, 6, 3>::zeros();
             let mut h_jj = Matrix6::<f64>::zeros();
@@ -913,7 +913,7 @@ mod tests {
 #[cfg(test)]
 mod graph_tests {
     use super::*;
-    use crate::graph::SharedGraph;
+    use crate::map::SharedGraph;
     use geom::{PinholeCamera, StereoCamera};
     use lie::Se3;
     use rand::{Rng, SeedableRng};
@@ -969,7 +969,7 @@ mod graph_tests {
                     }
                 }
             }
-            crate::registration::register_locally(&mut g, kf, 15, kf.checked_sub(1)).unwrap();
+            crate::mapping::register_locally(&mut g, kf, 15, kf.checked_sub(1)).unwrap();
             g.set_reference(kf).unwrap();
         }
         g.check_invariants().unwrap();
@@ -1156,7 +1156,7 @@ mod graph_tests {
                 {
                     let g = shared.read();
                     let r = g.reference().unwrap();
-                    let candidates = crate::registration::tracking_candidates(&g, r);
+                    let candidates = crate::tracking::tracking_candidates(&g, r);
                     assert!(!candidates.is_empty());
                     assert!(g.pose(r).is_ok());
                 }

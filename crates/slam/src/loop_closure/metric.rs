@@ -1,46 +1,15 @@
-//! Keyframe registration in the SLAM graph (thesis §6.2.5–6.2.6, §6.4): candidate points for
-//! tracking, motion-only pose estimation against the graph, local registration of a new
-//! keyframe, metric loop closure with the spread-of-matches test, and the insertion of an
-//! appearance-based (large) loop closure.
-//!
-//! Data association (which measurement belongs to which map point) is the caller's: the live
-//! system finds it by guided search in images, the simulator knows it. These functions take
-//! the matches and do the geometry and the graph bookkeeping.
+//! Metric loop closure in the SLAM graph (thesis §6.4.1, Figure 6.7(b)): the points of the
+//! wider neighbourhood `N2` that tracking does not search (`N2 \ N1`) are looked for again in
+//! the reference keyframe; when enough are found, well spread over the image and consistent
+//! with one pose, the reference is joined to the old keyframes that see them.
 
-use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation, Projector};
-use crate::graph::{GraphError, KeyframeId, PointId, SlamGraph};
-use lie::{LieGroup, Se3, Sim3};
-use lsq::{RobustKernel, SolverOptions};
-use nalgebra::{SVector, Vector3};
+use super::ClosureError;
+use crate::factors::Projector;
+use crate::map::{GraphError, KeyframeId, PointId, SlamGraph};
+use crate::tracking::{MotionOnlyOptions, estimate_pose, tracking_candidates};
+use lie::LieGroup;
+use nalgebra::SVector;
 use std::collections::{BTreeMap, BTreeSet};
-
-/// Why a registration step failed.
-#[derive(Debug, thiserror::Error)]
-pub enum RegistrationError {
-    /// A graph operation failed.
-    #[error(transparent)]
-    Graph(#[from] GraphError),
-    /// Too few matches to estimate a pose.
-    #[error("{got} matches are too few to estimate a pose (need {need})")]
-    TooFewMatches {
-        /// Matches given.
-        got: usize,
-        /// Matches needed.
-        need: usize,
-    },
-    /// The least-squares problem could not be built or solved.
-    #[error("motion-only bundle adjustment failed: {0}")]
-    Solver(String),
-}
-
-/// The candidate points for tracking against `V_ref` (thesis §6.2.5): every point visible from
-/// `N1(ref)`.
-pub fn tracking_candidates<const N: usize>(
-    graph: &SlamGraph<N>,
-    reference: KeyframeId,
-) -> BTreeSet<PointId> {
-    graph.points_visible_from(&graph.n1(reference))
-}
 
 /// The candidate points of a metric loop closure (thesis §6.4.1, Figure 6.7(b)): the set `A`
 /// of points visible from `N2(ref)` (the first `n2_size` keyframes of the weighted BFS) but not
@@ -53,123 +22,6 @@ pub fn loop_candidates<const N: usize>(
     let near = tracking_candidates(graph, reference);
     let wide = graph.points_visible_from(&graph.n2(reference, n2_size));
     wide.difference(&near).copied().collect()
-}
-
-/// Result of motion-only pose estimation.
-#[derive(Clone, Debug)]
-pub struct PoseEstimate {
-    /// The estimated pose `T = exp(ξ)·T_ref`-style absolute similarity.
-    pub camera_from_world: Sim3,
-    /// Squared whitened reprojection error `‖r‖²/σ²` of each match, in input order.
-    pub chi2: Vec<f64>,
-}
-
-/// Robust motion-only bundle adjustment (thesis eq. 4.14) of a camera measuring `matches`
-/// (map point and measurement), starting from `initial`. The pose is estimated rigidly in the
-/// metric of `frame` (the points are expressed in that keyframe's frame), so the result keeps
-/// `frame`'s scale: `T = T_rel·T_frame`.
-#[allow(clippy::too_many_arguments)]
-pub fn estimate_pose<P: Projector<N> + Clone, const N: usize>(
-    graph: &SlamGraph<N>,
-    frame: KeyframeId,
-    matches: &[(PointId, SVector<f64, N>)],
-    projector: &P,
-    initial: &Sim3,
-    sigma: f64,
-    iterations: usize,
-) -> Result<PoseEstimate, RegistrationError> {
-    const MIN_MATCHES: usize = 6;
-    if matches.len() < MIN_MATCHES {
-        return Err(RegistrationError::TooFewMatches {
-            got: matches.len(),
-            need: MIN_MATCHES,
-        });
-    }
-    let t_frame = graph.pose(frame)?;
-    let points: Vec<Vector3<f64>> = matches
-        .iter()
-        .map(|(p, _)| graph.point_in_frame(*p, frame))
-        .collect::<Result<_, _>>()?;
-    let observations = Observation::of_one_pose(matches.iter().map(|(_, z)| *z));
-    // Rigid part of T·T_frame⁻¹; the scale of the initial guess relative to the frame is 1 by
-    // construction of every caller (new keyframes inherit their reference's scale).
-    let relative = initial.compose(&t_frame.inverse()).rigid_part();
-    let mut ba = BundleAdjustment::new(
-        projector,
-        &[relative],
-        &points,
-        &observations,
-        sigma,
-        Some(RobustKernel::Huber(2.0)),
-        BaMode::MotionOnly,
-        &Gauge::Damping,
-    )
-    .map_err(|e| RegistrationError::Solver(e.to_string()))?;
-    let options = SolverOptions {
-        max_iterations: iterations,
-        ..SolverOptions::default()
-    };
-    ba.problem
-        .optimise(&options)
-        .map_err(|e| RegistrationError::Solver(e.to_string()))?;
-    let relative: Se3 = ba.camera_from_world()[0];
-    let chi2 = points
-        .iter()
-        .zip(matches)
-        .map(|(y, (_, z))| match projector.project(&relative.act(y)) {
-            Some((z_hat, _)) => (z_hat - z).norm_squared() / (sigma * sigma),
-            None => f64::INFINITY,
-        })
-        .collect();
-    Ok(PoseEstimate {
-        camera_from_world: Sim3::from_se3(&relative).compose(&t_frame),
-        chi2,
-    })
-}
-
-/// Local registration of a new keyframe (thesis §6.2.6): an edge to every keyframe sharing at
-/// least `theta` points with it, marginalised with the current relative pose (it is
-/// un-marginalised when both ends enter the inner window), and always an edge to `fallback`
-/// (the previous reference) so that the graph stays connected. Returns the new neighbours.
-pub fn register_locally<const N: usize>(
-    graph: &mut SlamGraph<N>,
-    keyframe: KeyframeId,
-    theta: usize,
-    fallback: Option<KeyframeId>,
-) -> Result<Vec<KeyframeId>, RegistrationError> {
-    let mut shared: BTreeMap<KeyframeId, usize> = BTreeMap::new();
-    let kf = graph
-        .keyframe(keyframe)
-        .ok_or(GraphError::UnknownKeyframe(keyframe))?;
-    for &p in kf.observations().keys() {
-        for &o in graph
-            .point(p)
-            .ok_or(GraphError::UnknownPoint(p))?
-            .observers()
-        {
-            if o != keyframe {
-                *shared.entry(o).or_default() += 1;
-            }
-        }
-    }
-    let mut neighbours: Vec<KeyframeId> = shared
-        .iter()
-        .filter(|&(_, &n)| n >= theta)
-        .map(|(&k, _)| k)
-        .collect();
-    if let Some(f) = fallback
-        && f != keyframe
-        && !neighbours.contains(&f)
-        && graph.keyframe(f).is_some()
-    {
-        neighbours.push(f);
-    }
-    let t_new = graph.pose(keyframe)?;
-    for &j in &neighbours {
-        let t_new_j = t_new.compose(&graph.pose(j)?.inverse());
-        graph.add_edge(j, keyframe, Some(t_new_j))?;
-    }
-    Ok(neighbours)
 }
 
 /// Options of metric loop closure (thesis §6.4.1).
@@ -209,7 +61,7 @@ pub fn close_metric_loops<P: Projector<N> + Clone, const N: usize>(
     matches: &[(PointId, SVector<f64, N>)],
     projector: &P,
     params: &MetricLoopParams,
-) -> Result<Vec<MetricLoopClosure>, RegistrationError> {
+) -> Result<Vec<MetricLoopClosure>, ClosureError> {
     if matches.len() < 6 {
         return Ok(Vec::new());
     }
@@ -221,8 +73,7 @@ pub fn close_metric_loops<P: Projector<N> + Clone, const N: usize>(
         matches,
         projector,
         &t_ref,
-        params.sigma,
-        10,
+        &MotionOnlyOptions::robust(params.sigma),
     )?;
     let inliers: Vec<(PointId, SVector<f64, N>)> = matches
         .iter()
@@ -275,29 +126,12 @@ pub fn close_metric_loops<P: Projector<N> + Clone, const N: usize>(
     Ok(out)
 }
 
-/// Inserts an appearance-based loop closure (thesis §6.4.2) between the reference `query` and
-/// an old keyframe `matched`: `matches` are points of the old map found in `query`, which
-/// become its observations, and the edge `E_matched,query` is added, marginalised with the
-/// measured `T_query,matched` (a similarity for monocular SLAM, whose scale then propagates
-/// through the re-initialisation of eq. 6.3, thesis §6.2.7).
-pub fn close_appearance_loop<const N: usize>(
-    graph: &mut SlamGraph<N>,
-    query: KeyframeId,
-    matched: KeyframeId,
-    query_from_matched: Sim3,
-    matches: &[(PointId, SVector<f64, N>)],
-) -> Result<(), RegistrationError> {
-    for (p, z) in matches {
-        graph.add_observation(query, *p, *z)?;
-    }
-    graph.add_edge(matched, query, Some(query_from_matched))?;
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use geom::{PinholeCamera, StereoCamera};
+    use lie::{Se3, Sim3};
+    use nalgebra::Vector3;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 

@@ -34,8 +34,11 @@
 //! filter is dropped). A world point seen again later is a new track — only loop closure
 //! ([`crate::loop_closure`]) relates it to the old one.
 
-use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation, PointObservation};
-use crate::feature_init::{FeatureFilters, FeatureId, FeatureInitConfig};
+pub mod feature_init;
+
+use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
+use crate::factors::PointObservation;
+use feature_init::{FeatureFilters, FeatureId, FeatureInitConfig};
 use geom::ransac::RansacConfig;
 use geom::two_view::{relative_pose_ransac, triangulate};
 use geom::{CameraModel, PinholeCamera};

@@ -42,7 +42,7 @@ use nalgebra::{SVector, Vector3};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
-use crate::ba::{MIN_INVERSE_DEPTH, inverse_depth_to_point};
+use crate::factors::{MIN_INVERSE_DEPTH, inverse_depth_to_point};
 
 /// Index of a keyframe vertex (never reused after removal).
 pub type KeyframeId = usize;
