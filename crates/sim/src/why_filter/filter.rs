@@ -26,55 +26,12 @@
 //! The cost is cubic in the number of points: every step factorises the dense `Λ`.
 
 use super::ba_slam::motion_only;
-use geom::{PinholeCamera, StereoCamera};
 use lie::{LieGroup, Se3};
 use lsq::dense::{SpdFactor, cholesky_solve_in_place, marginalise, spd_inverse};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector3, Vector6};
-use slam::factors::{Projector, inverse_depth_to_point, linearize_anchored};
+pub use slam::factors::InverseDepthCamera;
+use slam::factors::{inverse_depth_to_point, linearize_anchored};
 use std::collections::HashMap;
-
-/// A camera whose measurement in a point's anchor frame gives the point's inverse-depth
-/// coordinates: `ψ = ((u − p_u)/f, (v − p_v)/f, q)` with `q` from the stereo disparity,
-/// `(u_l − u_r)/(f·b)` (thesis eq. 4.23), or, for a monocular camera, unknown (eq. 4.26).
-pub trait InverseDepthCamera<const N: usize>: Projector<N> + Clone {
-    /// Whether one measurement determines depth (stereo, RGB-D) or not (monocular).
-    const MEASURES_DEPTH: bool;
-
-    /// `ψ` of a point measured `z` in its anchor frame; monocular cameras use
-    /// `default_inverse_depth` for `q`. `None` if `z` gives no valid point (e.g. a
-    /// non-positive disparity).
-    fn inverse_depth_from(
-        &self,
-        z: &SVector<f64, N>,
-        default_inverse_depth: f64,
-    ) -> Option<Vector3<f64>>;
-}
-
-impl InverseDepthCamera<2> for PinholeCamera {
-    const MEASURES_DEPTH: bool = false;
-
-    fn inverse_depth_from(
-        &self,
-        z: &SVector<f64, 2>,
-        default_inverse_depth: f64,
-    ) -> Option<Vector3<f64>> {
-        let m = self.normalised_from_pixel(z);
-        Some(Vector3::new(m.x, m.y, default_inverse_depth))
-    }
-}
-
-impl InverseDepthCamera<3> for StereoCamera {
-    const MEASURES_DEPTH: bool = true;
-
-    fn inverse_depth_from(
-        &self,
-        z: &SVector<f64, 3>,
-        _default_inverse_depth: f64,
-    ) -> Option<Vector3<f64>> {
-        let x = self.unproject(z).ok()?;
-        Some(Vector3::new(x.x / x.z, x.y / x.z, 1.0 / x.z))
-    }
-}
 
 /// The anchor of a point: the filter's fixed origin, or an anchor pose in the state (named by
 /// its frame number).

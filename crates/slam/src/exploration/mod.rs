@@ -48,8 +48,7 @@ use nalgebra::{Vector2, Vector3};
 use std::collections::{HashMap, HashSet};
 use vision::quadtree::{QuadPoint, QuadTree};
 
-/// The identity of a feature track (from the front-end; in simulation, the world point).
-pub type TrackId = u64;
+pub use crate::tracking::TrackId;
 
 /// Parameters of [`MonoExplorer`].
 #[derive(Clone, Debug)]

@@ -10,7 +10,10 @@
 pub mod bal;
 pub mod reprojection;
 
+mod camera;
+
 pub use bal::{BalCameraState, BalObservationFactor};
+pub use camera::InverseDepthCamera;
 pub use reprojection::{
     AnchorObservation, AnchoredLinearization, AnchoredObservation, AnchoredPose, MIN_INVERSE_DEPTH,
     PointObservation, d_inverse_depth_to_point, inverse_depth_to_point, linearize_anchored,

@@ -129,6 +129,7 @@ pub fn close_metric_loops<P: Projector<N> + Clone, const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::factors::point_to_inverse_depth;
     use geom::{PinholeCamera, StereoCamera};
     use lie::{Se3, Sim3};
     use nalgebra::Vector3;
@@ -137,10 +138,14 @@ mod tests {
 
     const THETA: usize = 20;
 
+    fn k(i: usize) -> KeyframeId {
+        KeyframeId::from_index(i)
+    }
+
     fn params() -> MetricLoopParams {
         MetricLoopParams {
             theta: THETA,
-            max_chi2: 7.81,
+            max_chi2: lsq::chi2_quantile(3, 0.95),
             sigma: 1.0,
             image_size: (640.0, 480.0),
         }
@@ -191,24 +196,24 @@ mod tests {
             let Some(zs) = zs else { continue };
             let x0 = truth[0].act(&y);
             let p = g
-                .add_point(0, Vector3::new(x0.x / x0.z, x0.y / x0.z, 1.0 / x0.z), zs[0])
+                .add_point(k(0), point_to_inverse_depth(&x0).unwrap(), zs[0])
                 .unwrap();
-            for (k, z) in zs.iter().enumerate().skip(1) {
-                g.add_observation(k, p, *z).unwrap();
+            for (i, z) in zs.iter().enumerate().skip(1) {
+                g.add_observation(k(i), p, *z).unwrap();
             }
             wall.push((p, y));
         }
         for a in 0..5 {
             for b in a + 1..5 {
-                g.add_edge(a, b, None).unwrap();
+                g.add_edge(k(a), k(b), None).unwrap();
             }
         }
-        for k in 5..10 {
-            g.add_edge(k - 1, k, None).unwrap();
+        for i in 5..10 {
+            g.add_edge(k(i - 1), k(i), None).unwrap();
         }
         let t_ref = Se3::from_translation(Vector3::new(offset, 0.0, 0.0)).compose(&truth[10]);
         let r = g.add_keyframe(Sim3::from_se3(&t_ref));
-        g.add_edge(9, r, None).unwrap();
+        g.add_edge(k(9), r, None).unwrap();
         g.set_reference(r).unwrap();
         (g, truth[10], wall)
     }
@@ -232,30 +237,33 @@ mod tests {
     fn loop_candidates_are_the_points_of_n2_not_seen_from_n1() {
         let (g, _, wall) = revisit(0.02);
         assert!(
-            loop_candidates(&g, 10, 5).is_empty(),
+            loop_candidates(&g, k(10), 5).is_empty(),
             "N2 of 5 keyframes ends at 6"
         );
-        let a = loop_candidates(&g, 10, 20);
+        let a = loop_candidates(&g, k(10), 20);
         assert_eq!(a.len(), wall.len());
-        assert!(tracking_candidates(&g, 10).is_empty());
+        assert!(tracking_candidates(&g, k(10)).is_empty());
     }
 
     #[test]
     fn metric_loop_closure_fires_on_a_revisit_with_well_spread_matches() {
         let (mut g, truth, wall) = revisit(0.02);
         let matches = measure(&truth, &wall, |_| true);
-        let closed = close_metric_loops(&mut g, 10, &matches, &camera(), &params()).unwrap();
+        let closed = close_metric_loops(&mut g, k(10), &matches, &camera(), &params()).unwrap();
         let joined: Vec<KeyframeId> = closed.iter().map(|c| c.keyframe).collect();
-        assert_eq!(joined, vec![0, 1, 2, 3, 4], "{closed:?}");
-        for k in 0..5 {
+        assert_eq!(joined, (0..5).map(k).collect::<Vec<_>>(), "{closed:?}");
+        for i in (0..5).map(k) {
             // Marginalised with T_loop·T_k⁻¹, i.e. close to the truth, not to the 2 cm off
             // reference pose.
-            let rel = g.edge(k, 10).unwrap().relative.unwrap();
-            let expect = Sim3::from_se3(&truth).compose(&g.pose(k).unwrap().inverse());
+            let rel = g.edge(i, k(10)).unwrap().relative.unwrap();
+            let expect = Sim3::from_se3(&truth).compose(&g.pose(i).unwrap().inverse());
             let err = rel.compose(&expect.inverse()).log();
-            assert!(err.norm() < 1e-6, "keyframe {k}: {err:?}");
+            assert!(err.norm() < 1e-6, "{i}: {err:?}");
         }
-        assert_eq!(g.keyframe(10).unwrap().observations().len(), matches.len());
+        assert_eq!(
+            g.keyframe(k(10)).unwrap().observations().len(),
+            matches.len()
+        );
     }
 
     #[test]
@@ -263,11 +271,14 @@ mod tests {
         let (mut g, truth, wall) = revisit(0.02);
         let matches = measure(&truth, &wall, |z| z[0] < 320.0);
         assert!(matches.len() >= 2 * THETA, "{} matches", matches.len());
-        let closed = close_metric_loops(&mut g, 10, &matches, &camera(), &params()).unwrap();
+        let closed = close_metric_loops(&mut g, k(10), &matches, &camera(), &params()).unwrap();
         assert!(closed.is_empty(), "{closed:?}");
-        assert!(g.edge(0, 10).is_none());
+        assert!(g.edge(k(0), k(10)).is_none());
         // The verified matches are observations of the reference all the same.
-        assert_eq!(g.keyframe(10).unwrap().observations().len(), matches.len());
+        assert_eq!(
+            g.keyframe(k(10)).unwrap().observations().len(),
+            matches.len()
+        );
     }
 
     #[test]
@@ -282,9 +293,9 @@ mod tests {
                 z[2] += 8.0;
             }
         }
-        let closed = close_metric_loops(&mut g, 10, &matches, &camera(), &params()).unwrap();
+        let closed = close_metric_loops(&mut g, k(10), &matches, &camera(), &params()).unwrap();
         assert_eq!(closed.len(), 5, "{closed:?}");
-        let kept = g.keyframe(10).unwrap().observations().len();
+        let kept = g.keyframe(k(10)).unwrap().observations().len();
         assert_eq!(kept, matches.len() - matches.len().div_ceil(4));
     }
 }

@@ -14,6 +14,11 @@ use lsq::{RobustKernel, SolverOptions};
 use nalgebra::{SVector, Vector3};
 use std::collections::BTreeSet;
 
+/// The identity of a feature track: a feature followed from frame to frame by the front-end
+/// (in simulation, the world point), so that its measurements in different keyframes can be
+/// related before it is a map point.
+pub type TrackId = u64;
+
 /// Why a pose could not be estimated.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TrackingError {
