@@ -56,14 +56,36 @@ pub enum Scenario {
     DoubleLoop,
 }
 
-/// The camera.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SensorKind {
-    /// Rectified stereo, f = 300, baseline 5 cm, 640×480.
-    Stereo,
-    /// Monocular, f = 300, 640×480.
-    Mono,
+impl Scenario {
+    /// Every scenario.
+    pub const ALL: [Scenario; 3] = [Scenario::Spiral, Scenario::Room, Scenario::DoubleLoop];
+
+    /// A command-line friendly name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Scenario::Spiral => "spiral",
+            Scenario::Room => "room",
+            Scenario::DoubleLoop => "double-loop",
+        }
+    }
+
+    /// One line on what it is.
+    pub fn description(self) -> &'static str {
+        match self {
+            Scenario::Spiral => {
+                "500 keyframes on a helix through a tunnel, every place seen on two successive loops: loopy motion with exploration (Figures 6.9–6.10)"
+            }
+            Scenario::Room => {
+                "500 keyframes on a planar coil in a small room, all of it in view from the first loop: loopy browsing without exploration"
+            }
+            Scenario::DoubleLoop => {
+                "two loops of 150 keyframes on a 40 m circle, monocular scale drift (Figures 6.11–6.12)"
+            }
+        }
+    }
 }
+
+pub use crate::sensor::SensorKind;
 
 /// The optimisation methods compared in thesis §6.5.1.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -97,13 +119,13 @@ impl Method {
         }
     }
 
-    /// A file-name friendly name.
+    /// A file-name and command-line friendly name.
     pub fn slug(self) -> &'static str {
         match self {
             Method::FullBa => "ba",
             Method::Cdwo => "cdwo",
             Method::Gdwo => "gdwo",
-            Method::CdwoFixedOuter => "cdwo_fixed",
+            Method::CdwoFixedOuter => "cdwo-fixed",
         }
     }
 }

@@ -62,24 +62,7 @@ pub enum Setting {
     IV,
 }
 
-/// Stereo or monocular.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum SensorKind {
-    /// Rectified stereo, baseline 0.1 m.
-    Stereo,
-    /// Monocular, bootstrapped.
-    Mono,
-}
-
-impl SensorKind {
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            SensorKind::Stereo => "stereo",
-            SensorKind::Mono => "mono",
-        }
-    }
-}
+pub use crate::sensor::SensorKind;
 
 /// Focal length (px).
 pub const FOCAL: f64 = 500.0;

@@ -146,6 +146,22 @@ pub enum ConstraintInformation {
     Marginal,
 }
 
+impl ConstraintInformation {
+    /// Both kinds.
+    pub const ALL: [ConstraintInformation; 2] = [
+        ConstraintInformation::Coarse,
+        ConstraintInformation::Marginal,
+    ];
+
+    /// A lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ConstraintInformation::Coarse => "coarse",
+            ConstraintInformation::Marginal => "marginal",
+        }
+    }
+}
+
 /// Options of double window optimisation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DwoParams {
@@ -1259,5 +1275,105 @@ mod graph_tests {
         let g = shared.into_inner();
         g.check_invariants().unwrap();
         assert_eq!(g.num_keyframes(), 41);
+    }
+
+    /// A loop correction lands between the plan and the write-back (the loop-closure thread
+    /// corrected the graph while the optimiser worked without the lock): the write-back
+    /// detects that the window's poses moved, writes nothing, and the graph keeps the
+    /// correction; the next optimisation re-plans from the corrected graph.
+    #[test]
+    fn a_loop_correction_during_an_optimisation_supersedes_its_result() {
+        use crate::loop_closure::{CorrectionGroup, LoopEdge, correction::correct_graph};
+        use crate::pose_graph::PoseGraphJacobian;
+        let (g, cam, _) = wall_graph(5, 30);
+        let shared = SharedGraph::new(g);
+        let mut dwo = DoubleWindowOptimiser::new(DwoParams::new(5, 10, 300.0, 0.5));
+        // Plan and build under the read lock.
+        let (plan, mut problem) = {
+            let g = shared.read();
+            let plan = dwo.plan(&g).unwrap();
+            let problem = dwo.build(&g, &plan, &cam).unwrap();
+            (plan, problem)
+        };
+        // Meanwhile: a Sim(3) loop correction between the newest and the first keyframe,
+        // whose measured loop disagrees with the chain by 2 % in scale and 3 cm.
+        let correction = {
+            let mut g = shared.write();
+            let (first, last) = (KeyframeId(0), KeyframeId(29));
+            let chain_loop = g
+                .pose(first)
+                .unwrap()
+                .compose(&g.pose(last).unwrap().inverse());
+            let disagreement =
+                Sim3::new(lie::So3::identity(), Vector3::new(0.03, 0.0, 0.0), 1.02).unwrap();
+            let loops = [LoopEdge {
+                old: 0,
+                current: 29,
+                old_from_current: disagreement.compose(&chain_loop),
+            }];
+            correct_graph(
+                &mut g,
+                &loops,
+                CorrectionGroup::Sim3,
+                PoseGraphJacobian::Analytic(lie::LogJacobian::Exact),
+                &SolverOptions::default(),
+            )
+            .unwrap();
+            g.check_invariants().unwrap();
+            g.snapshot_state()
+        };
+        // The optimisation ran on the old poses...
+        let mut stats = DwoStats::default();
+        dwo.solve(&mut problem, &mut stats).unwrap();
+        // ...so its write-back is refused and changes nothing.
+        let result = dwo.apply(&mut shared.write(), &plan, &problem);
+        let Err(DwoError::Superseded { keyframes }) = result else {
+            panic!("a stale result was written: {result:?}");
+        };
+        assert!(keyframes.len() >= plan.window.len() - 1, "{keyframes:?}");
+        {
+            let g = shared.read();
+            g.check_invariants().unwrap();
+            assert_eq!(
+                g.snapshot_state(),
+                correction,
+                "the write-back changed the graph"
+            );
+        }
+        // The next optimisation re-plans from the corrected graph and succeeds.
+        let stats = dwo.optimise_shared(&shared, &cam).unwrap();
+        assert!(stats.cost_after <= stats.cost_before);
+        assert_eq!(
+            stats.write_back.poses,
+            stats.inner_frames + stats.outer_frames
+        );
+        shared.read().check_invariants().unwrap();
+    }
+
+    /// Tracking changes the window between plan and write-back without moving its poses (a new
+    /// keyframe, new observations, a removed point, a re-anchored point): the write-back
+    /// writes the rest and reports what it left alone.
+    #[test]
+    fn concurrent_tracking_changes_are_kept_and_reported() {
+        let (mut g, cam, _) = wall_graph(6, 30);
+        let mut dwo = DoubleWindowOptimiser::new(DwoParams::new(5, 10, 300.0, 0.5));
+        let plan = dwo.plan(&g).unwrap();
+        let mut problem = dwo.build(&g, &plan, &cam).unwrap();
+        let (removed, reanchored) = (plan.points[0], plan.points[1]);
+        let r = g.reference().unwrap();
+        let kf = g.add_keyframe(g.pose(r).unwrap());
+        let z = g.keyframe(r).unwrap().observations()[&plan.points[2]];
+        g.add_observation(kf, plan.points[2], z).unwrap();
+        g.remove_point(removed).unwrap();
+        let anchor = g.point(reanchored).unwrap().anchor();
+        g.remove_observation(anchor, reanchored).unwrap();
+        let mut stats = DwoStats::default();
+        dwo.solve(&mut problem, &mut stats).unwrap();
+        let report = dwo.apply(&mut g, &plan, &problem).unwrap();
+        g.check_invariants().unwrap();
+        assert_eq!(report.superseded_points, 2, "{report:?}");
+        assert_eq!(report.points + 2, plan.points.len());
+        assert_eq!(report.poses, plan.initial_poses.len());
+        assert_eq!(g.keyframe(kf).unwrap().observations().len(), 1);
     }
 }

@@ -11,7 +11,8 @@
 //! uncertain measurements ([`LoopViewMeasurement`]). Its scale `s_loop` is the scale drift
 //! accumulated around the loop.
 
-use crate::exploration::{Keyframe, MapPoint};
+use crate::map::{KeyframeId, PointId, SlamGraph};
+use crate::tracking::TrackId;
 use geom::ransac::{RansacConfig, RansacError, Sim3Estimator, ransac};
 use geom::{CameraModel, PinholeCamera};
 use lie::{LieGroup, Sim3};
@@ -84,19 +85,15 @@ pub fn knn_depth(
 }
 
 /// The `(pixel, depth)` samples of a keyframe: its measurements of map points with the points'
-/// depths in its camera frame (those in front of it).
-pub fn depth_samples(keyframe: &Keyframe, points: &[MapPoint]) -> Vec<(Vector2<f64>, f64)> {
-    keyframe
-        .observations
-        .iter()
-        .map(|(p, z)| {
-            (
-                *z,
-                keyframe.camera_from_world.act(&points[*p].point_world).z,
-            )
-        })
-        .filter(|(_, d)| *d > 0.0)
-        .collect()
+/// depths in its camera frame (those in front of it; empty for an unknown keyframe).
+pub fn depth_samples(graph: &SlamGraph<2>, keyframe: KeyframeId) -> Vec<(Vector2<f64>, f64)> {
+    graph.keyframe(keyframe).map_or_else(Vec::new, |kf| {
+        kf.observations()
+            .iter()
+            .filter_map(|(&p, z)| Some((*z, graph.point_in_frame(p, keyframe).ok()?.z)))
+            .filter(|(_, d)| *d > 0.0)
+            .collect()
+    })
 }
 
 /// A loop match seen in one of the two keyframes, for the robust refinement of the loop
@@ -466,41 +463,40 @@ impl LoopMatches<'_> {
     }
 }
 
-/// The matches of two keyframes: the tracks measured in both (perfect data association, as a
-/// simulator gives, standing in for descriptor matching), in the order of the old keyframe's
-/// measurements, with known depths for the map points each keyframe measures and every map
-/// point it measures as a regression sample.
+/// The matches of two keyframes of `graph`: the tracks measured in both (perfect data
+/// association, as a simulator gives, standing in for descriptor matching), in the order of
+/// the old keyframe's `measurements` (`(track, z)` of every feature, map point or not), with
+/// known depths for the map points each keyframe measures (`track_of` names a point's track)
+/// and every map point it measures as a regression sample.
 pub fn matched_views(
-    old: &Keyframe,
-    current: &Keyframe,
-    points: &[MapPoint],
+    graph: &SlamGraph<2>,
+    (old, old_measurements): (KeyframeId, &[(TrackId, Vector2<f64>)]),
+    (current, current_measurements): (KeyframeId, &[(TrackId, Vector2<f64>)]),
+    track_of: &dyn Fn(PointId) -> TrackId,
 ) -> (LoopView, LoopView) {
     use std::collections::HashMap;
-    let known = |k: &Keyframe| -> HashMap<u64, f64> {
-        k.observations
-            .iter()
-            .map(|(p, _)| {
-                (
-                    points[*p].track,
-                    k.camera_from_world.act(&points[*p].point_world).z,
-                )
-            })
-            .filter(|(_, d)| *d > 0.0)
-            .collect()
+    let known = |k: KeyframeId| -> HashMap<TrackId, f64> {
+        graph.keyframe(k).map_or_else(HashMap::new, |kf| {
+            kf.observations()
+                .keys()
+                .filter_map(|&p| Some((track_of(p), graph.point_in_frame(p, k).ok()?.z)))
+                .filter(|(_, d)| *d > 0.0)
+                .collect()
+        })
     };
     let (known_old, known_cur) = (known(old), known(current));
-    let cur: HashMap<_, _> = current.measurements.iter().copied().collect();
+    let cur: HashMap<_, _> = current_measurements.iter().copied().collect();
     let mut views = (
         LoopView {
-            samples: depth_samples(old, points),
+            samples: depth_samples(graph, old),
             ..LoopView::default()
         },
         LoopView {
-            samples: depth_samples(current, points),
+            samples: depth_samples(graph, current),
             ..LoopView::default()
         },
     );
-    for (t, z) in &old.measurements {
+    for (t, z) in old_measurements {
         if let Some(zc) = cur.get(t) {
             views.0.pixels.push(*z);
             views.0.depths.push(known_old.get(t).copied());

@@ -4,14 +4,18 @@
 //! `S_ji = S⁻¹` (mapping the old camera into the current one). The pose graph (eq. 5.16) is
 //! optimised either in SE(3) — the loop constraint's rigid part `(R, t)`, so scale drift cannot
 //! be corrected — or in Sim(3), where every pose becomes a similarity with `s = 1` and only the
-//! loop carries `s_loop ≠ 1` (eq. 5.17), with the exact or CBH Jacobians (§5.3.3). Afterwards
-//! each point is re-anchored to a keyframe `i` that sees it, `y_cor = (S_i^cor)⁻¹·(T_i·y)`
-//! ([`correct_points`]), the similarities become rigid poses `(R, t/s)`
-//! ([`crate::pose_graph::rigid_from_similarity`]), and the map is refined by structure-only (and
-//! optionally full) BA ([`refine_map`]).
+//! loop carries `s_loop ≠ 1` (eq. 5.17), with the exact or CBH Jacobians (§5.3.3).
+//!
+//! On the SLAM graph ([`correct_graph`]) the chain is its keyframes in id order. Afterwards
+//! each point is re-anchored to a keyframe `a` that sees it, `y_cor = (S_a^cor)⁻¹·(T_a·y)`: in
+//! the graph's anchored representation, `y = T_a⁻¹·Π(ψ)`, that is what writing the corrected
+//! similarity into the anchor does, so the points follow their anchors. The map is then
+//! refined by structure-only (and optionally full) BA on the rigid poses `(R, t/s)`
+//! ([`crate::pose_graph::rigid_from_similarity`], [`refine_graph`]).
 
 use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
-use crate::exploration::MapPoint;
+use crate::factors::point_to_inverse_depth;
+use crate::map::{GraphError, KeyframeId, PointId, SlamGraph};
 use crate::pose_graph::{
     Constraint, PoseGraphError, PoseGraphJacobian, PoseGraphProblem, rigid_from_similarity,
 };
@@ -20,7 +24,8 @@ use lie::{LieGroup, Se3, Sim3};
 use lsq::{RobustKernel, SolverOptions};
 use nalgebra::{SMatrix, Vector3};
 
-/// A loop edge of the pose graph between keyframes `old` and `current`.
+/// A loop edge of the pose graph between the keyframes at positions `old` and `current` of a
+/// keyframe chain (for a graph, [`correct_graph`]: positions in id order).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LoopEdge {
     /// The old keyframe.
@@ -149,56 +154,101 @@ pub enum CorrectionError {
     /// The bundle adjustment could not be built.
     #[error(transparent)]
     Ba(#[from] crate::ba::BaError),
+    /// A graph operation failed.
+    #[error(transparent)]
+    Graph(#[from] GraphError),
+    /// A loop refers to a position beyond the keyframe chain.
+    #[error("a loop joins position {position} of a chain of {keyframes} keyframes")]
+    LoopOutOfRange {
+        /// The position.
+        position: usize,
+        /// Keyframes in the chain.
+        keyframes: usize,
+    },
 }
 
-/// Re-anchors points to their corrected keyframes (thesis §5.3.2):
-/// `y_cor = (S_a^cor)⁻¹·(T_a·y)` with `a` the point's anchor keyframe, `T_a` its pose before
-/// and `S_a^cor` after the correction.
-pub fn correct_points(
-    points: &[MapPoint],
-    poses_before: &[Se3],
-    corrected: &[Sim3],
-) -> Vec<Vector3<f64>> {
-    points
+/// The keyframes of `graph` in id order (the chain of thesis §5.3.2) with their rigid poses.
+fn chain<const N: usize>(graph: &SlamGraph<N>) -> (Vec<KeyframeId>, Vec<Se3>) {
+    graph
+        .keyframes()
+        .map(|(k, kf)| (k, rigid_from_similarity(kf.camera_from_world())))
+        .unzip()
+}
+
+/// Corrects the keyframes of `graph` through the pose graph of their chain — keyframes in id
+/// order, `loops` giving positions in it — in `group`, the first keyframe fixed
+/// ([`correct_pose_graph`] on the rigid poses), and writes the corrected poses back: a keyframe
+/// `k` of scale `s_k` becomes `s_k·S_k`, so that its anchored points follow it (the
+/// re-anchoring of the module docs). Returns the correction.
+pub fn correct_graph<const N: usize>(
+    graph: &mut SlamGraph<N>,
+    loops: &[LoopEdge],
+    group: CorrectionGroup,
+    jacobian: PoseGraphJacobian,
+    options: &SolverOptions,
+) -> Result<Correction, CorrectionError> {
+    let (ids, poses) = chain(graph);
+    if let Some(position) = loops
         .iter()
-        .map(|p| {
-            let a = p.anchor_keyframe;
-            corrected[a]
-                .inverse()
-                .act(&poses_before[a].act(&p.point_world))
-        })
-        .collect()
+        .flat_map(|l| [l.old, l.current])
+        .find(|&p| p >= ids.len())
+    {
+        return Err(CorrectionError::LoopOutOfRange {
+            position,
+            keyframes: ids.len(),
+        });
+    }
+    let correction = correct_pose_graph(&poses, loops, group, jacobian, options)?;
+    for (&k, s_cor) in ids.iter().zip(&correction.similarities) {
+        let scale = graph.pose(k)?.scale();
+        let pose = if scale == 1.0 {
+            *s_cor
+        } else {
+            Sim3::new(lie::So3::identity(), Vector3::zeros(), scale)
+                .expect("a keyframe's scale is positive")
+                .compose(s_cor)
+        };
+        graph.set_pose(k, pose)?;
+    }
+    Ok(correction)
 }
 
-/// Refines the map after a correction: structure-only BA (poses fixed), then, if `full`, full
-/// BA with the first two keyframes fixed (the monocular gauge, thesis §3.3.2), Huber at
-/// `huber`σ. Returns the refined poses and points.
+/// Refines the map of a monocular `graph` after a correction: structure-only BA on the rigid
+/// poses `(R, t/s)` of its keyframes (poses fixed), then, if `full`, full BA with the first
+/// two keyframes fixed (the monocular gauge, thesis §3.3.2), Huber at `huber`σ, on Euclidean
+/// points; writes the rigid poses and the points (anchored again) back and returns the poses
+/// in id order. A point the refinement pushes behind its anchor keeps its previous position.
 #[allow(clippy::too_many_arguments)]
-pub fn refine_map(
+pub fn refine_graph(
+    graph: &mut SlamGraph<2>,
     camera: &PinholeCamera,
-    camera_from_world: &[Se3],
-    points_world: &[Vector3<f64>],
-    points: &[MapPoint],
     sigma: f64,
     huber: f64,
     full: bool,
     options: &SolverOptions,
-) -> Result<(Vec<Se3>, Vec<Vector3<f64>>), CorrectionError> {
-    let observations: Vec<Observation<2>> = points
+) -> Result<Vec<Se3>, CorrectionError> {
+    let (ids, poses) = chain(graph);
+    let position: std::collections::BTreeMap<KeyframeId, usize> =
+        ids.iter().enumerate().map(|(i, &k)| (k, i)).collect();
+    let point_ids: Vec<PointId> = graph.points().map(|(p, _)| p).collect();
+    let points_world: Vec<Vector3<f64>> = point_ids
         .iter()
-        .enumerate()
-        .flat_map(|(j, p)| {
-            p.observations.iter().map(move |(k, z)| Observation {
-                pose: *k,
+        .map(|&p| graph.point_world(p))
+        .collect::<Result<_, _>>()?;
+    let mut observations = Vec::new();
+    for (j, &p) in point_ids.iter().enumerate() {
+        for &k in graph.point(p).expect("listed").observers() {
+            observations.push(Observation {
+                pose: position[&k],
                 point: j,
-                measurement: *z,
-            })
-        })
-        .collect();
+                measurement: graph.keyframe(k).expect("observer").observations()[&p],
+            });
+        }
+    }
     let mut ba = BundleAdjustment::new(
         camera,
-        camera_from_world,
-        points_world,
+        &poses,
+        &points_world,
         &observations,
         sigma,
         Some(RobustKernel::Huber(huber)),
@@ -222,7 +272,16 @@ pub fn refine_map(
         poses = ba.camera_from_world();
         pts = ba.points_world();
     }
-    Ok((poses, pts))
+    for (&k, t) in ids.iter().zip(&poses) {
+        graph.set_pose(k, Sim3::from_se3(t))?;
+    }
+    for (&p, y) in point_ids.iter().zip(&pts) {
+        let anchor = graph.point(p).expect("listed").anchor();
+        if let Some(psi) = point_to_inverse_depth(&graph.pose(anchor)?.act(y)) {
+            graph.set_inverse_depth(p, psi)?;
+        }
+    }
+    Ok(poses)
 }
 
 #[cfg(test)]
@@ -308,5 +367,77 @@ mod tests {
             "before {e0}, Sim(3) {e_sim}, SE(3) {e_se}"
         );
         assert!(e_sim < 0.1 * e0);
+    }
+
+    /// On the graph the points follow their anchors: after the correction each point is where
+    /// the thesis's re-anchoring puts it, `y_cor = (S_a^cor)⁻¹·(T_a·y)` with `T_a` rigid — also
+    /// for a keyframe whose pose already had a scale.
+    #[test]
+    fn points_follow_their_anchors_through_a_graph_correction() {
+        use nalgebra::Vector2;
+        let mut g = SlamGraph::<2>::new();
+        let mut rigid = Vec::new();
+        for k in 0..12 {
+            let a = 0.3 * k as f64;
+            let t = Se3::new(So3::rot_y(a), Vector3::new(a.sin(), 0.0, 2.0 * a.cos()));
+            // Keyframe 5 carries a scale from an earlier Sim(3) correction.
+            let scale = if k == 5 { 1.3 } else { 1.0 };
+            let pose = Sim3::new(*t.rotation(), t.translation() * scale, scale).unwrap();
+            rigid.push(rigid_from_similarity(&pose));
+            let kf = g.add_keyframe(pose);
+            for i in 0..3 {
+                let psi = Vector3::new(0.1 * i as f64, -0.05, 0.4 + 0.1 * i as f64);
+                g.add_point(kf, psi, Vector2::zeros()).unwrap();
+            }
+        }
+        let before: Vec<(PointId, KeyframeId, Vector3<f64>)> = g
+            .points()
+            .map(|(p, pt)| (p, pt.anchor(), g.point_world(p).unwrap()))
+            .collect();
+        let drifted = rigid[0].compose(&rigid[11].inverse());
+        let loops = [LoopEdge {
+            old: 0,
+            current: 11,
+            old_from_current: Sim3::new(*drifted.rotation(), *drifted.translation(), 0.9).unwrap(),
+        }];
+        let correction = correct_graph(
+            &mut g,
+            &loops,
+            CorrectionGroup::Sim3,
+            PoseGraphJacobian::Analytic(lie::LogJacobian::Exact),
+            &SolverOptions::default(),
+        )
+        .unwrap();
+        g.check_invariants().unwrap();
+        let mut moved = 0.0f64;
+        for (p, a, y) in before {
+            let s_cor = correction.similarities[a.index()];
+            let expect = s_cor.inverse().act(&rigid[a.index()].act(&y));
+            let got = g.point_world(p).unwrap();
+            assert!(
+                (got - expect).norm() < 1e-9 * expect.norm(),
+                "{p}: {got} vs {expect}"
+            );
+            moved = moved.max((got - y).norm());
+        }
+        assert!(moved > 0.05, "the correction should move points ({moved})");
+        // Out-of-range loops are refused before anything changes.
+        let bad = [LoopEdge {
+            old: 0,
+            current: 12,
+            ..loops[0]
+        }];
+        let state = g.snapshot_state();
+        assert!(matches!(
+            correct_graph(
+                &mut g,
+                &bad,
+                CorrectionGroup::Se3,
+                PoseGraphJacobian::Analytic(lie::LogJacobian::Exact),
+                &SolverOptions::default(),
+            ),
+            Err(CorrectionError::LoopOutOfRange { position: 12, .. })
+        ));
+        assert_eq!(g.snapshot_state(), state);
     }
 }

@@ -673,6 +673,25 @@ impl<const N: usize> SlamGraph<N> {
         Ok(())
     }
 
+    /// The poses and points of the graph, for comparing two states of it (tests, and writers
+    /// that check what changed): `(keyframe, pose)` and `(point, anchor, ψ)` in id order.
+    #[allow(clippy::type_complexity)]
+    pub fn snapshot_state(
+        &self,
+    ) -> (
+        Vec<(KeyframeId, Sim3)>,
+        Vec<(PointId, KeyframeId, Vector3<f64>)>,
+    ) {
+        (
+            self.keyframes()
+                .map(|(k, kf)| (k, kf.camera_from_world))
+                .collect(),
+            self.points()
+                .map(|(p, pt)| (p, pt.anchor, pt.inverse_depth))
+                .collect(),
+        )
+    }
+
     /// Checks every invariant of the module docs; the first violation is the error.
     pub fn check_invariants(&self) -> Result<(), GraphError> {
         let bad = |s: String| Err(GraphError::Invariant(s));
