@@ -734,7 +734,7 @@ fn evaluate<const N: usize>(
         )
     };
     let closure_near = |i: usize| world.appearance_closures.iter().any(|&(q, _)| q == i);
-    let rmse_all_pairs = if k % config.all_pairs_every.max(1) == 0
+    let rmse_all_pairs = if k.is_multiple_of(config.all_pairs_every.max(1))
         || closure_near(k)
         || closure_near(k + 1)
         || k + 1 == n

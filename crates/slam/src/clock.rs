@@ -11,28 +11,23 @@
 
 use std::time::Duration;
 
-/// `clock_gettime` of `clock`, or `None` where it is unavailable.
-fn cpu_clock(#[allow(unused_variables)] clock: i32) -> Option<Duration> {
-    #[cfg(unix)]
-    {
-        let mut ts = libc::timespec {
-            tv_sec: 0,
-            tv_nsec: 0,
-        };
-        // SAFETY: `ts` is a valid, exclusively borrowed timespec; the call only writes it.
-        let rc = unsafe { libc::clock_gettime(clock as libc::clockid_t, &mut ts) };
-        if rc == 0 {
-            return Some(Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32));
-        }
-    }
-    None
+/// `clock_gettime` of `clock`, or `None` if it fails.
+#[cfg(unix)]
+fn cpu_clock(clock: libc::clockid_t) -> Option<Duration> {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, exclusively borrowed timespec; the call only writes it.
+    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
+    (rc == 0).then(|| Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32))
 }
 
 /// The CPU time the calling thread has consumed so far; on platforms without a thread CPU
 /// clock, the time since the first call (wall clock).
 pub fn thread_cpu_time() -> Duration {
     #[cfg(unix)]
-    if let Some(t) = cpu_clock(libc::CLOCK_THREAD_CPUTIME_ID as i32) {
+    if let Some(t) = cpu_clock(libc::CLOCK_THREAD_CPUTIME_ID) {
         return t;
     }
     static START: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
@@ -44,7 +39,7 @@ pub fn thread_cpu_time() -> Duration {
 pub fn process_cpu_time() -> Option<Duration> {
     #[cfg(unix)]
     {
-        cpu_clock(libc::CLOCK_PROCESS_CPUTIME_ID as i32)
+        cpu_clock(libc::CLOCK_PROCESS_CPUTIME_ID)
     }
     #[cfg(not(unix))]
     {

@@ -654,8 +654,9 @@ mod tests {
             let e = run(args).expect_err("a non-positive or non-finite noise must be refused");
             assert!(e.to_string().contains("--noise"), "{e}");
         }
+        // Unknown method names are refused by the parser (tests/bad_arguments.rs).
         let args = DwoArgs {
-            methods: Some(vec!["bundle".into()]),
+            methods: Some(Vec::new()),
             out: out.clone(),
             ..DwoArgs::demo()
         };
@@ -663,7 +664,7 @@ mod tests {
             run(args)
                 .unwrap_err()
                 .to_string()
-                .contains("unknown method")
+                .contains("--methods is empty")
         );
         assert!(!out.exists(), "nothing is written for refused options");
     }

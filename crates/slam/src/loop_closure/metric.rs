@@ -6,8 +6,8 @@
 use super::ClosureError;
 use crate::factors::Projector;
 use crate::map::{GraphError, KeyframeId, PointId, SlamGraph};
-use crate::tracking::{MotionOnlyOptions, estimate_pose, tracking_candidates};
-use lie::LieGroup;
+use crate::tracking::{MotionOnlyOptions, PoseProblem, tracking_candidates};
+use lie::{LieGroup, Sim3};
 use nalgebra::SVector;
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -55,6 +55,10 @@ pub struct MetricLoopClosure {
 /// spread-of-matches test) — an edge `E_ref,i` is added, marginalised with
 /// `T_ref,i = T_loop·T_i⁻¹` (thesis eq. 6.8). The matches that survive the pruning become
 /// observations of the reference keyframe (also when no edge is accepted).
+///
+/// In one go: [`MetricLoopProblem::from_graph`], [`MetricLoopProblem::solve`],
+/// [`MetricLoopFit::apply`] (the phases a thread runs under a read lock, without a lock, and
+/// under a write lock).
 pub fn close_metric_loops<P: Projector<N> + Clone, const N: usize>(
     graph: &mut SlamGraph<N>,
     reference: KeyframeId,
@@ -62,68 +66,138 @@ pub fn close_metric_loops<P: Projector<N> + Clone, const N: usize>(
     projector: &P,
     params: &MetricLoopParams,
 ) -> Result<Vec<MetricLoopClosure>, ClosureError> {
-    if matches.len() < 6 {
-        return Ok(Vec::new());
+    match MetricLoopProblem::from_graph(graph, reference, matches)? {
+        Some(problem) => Ok(problem.solve(projector, params)?.apply(graph)?),
+        None => Ok(Vec::new()),
     }
-    // T_loop is estimated in the reference's metric: the points are expressed in its frame.
-    let t_ref = graph.pose(reference)?;
-    let fit = estimate_pose(
-        graph,
-        reference,
-        matches,
-        projector,
-        &t_ref,
-        &MotionOnlyOptions::robust(params.sigma),
-    )?;
-    let inliers: Vec<(PointId, SVector<f64, N>)> = matches
-        .iter()
-        .zip(&fit.chi2)
-        .filter(|&(_, &c)| c <= params.max_chi2)
-        .map(|(m, _)| *m)
-        .collect();
-    let near: BTreeSet<KeyframeId> = graph.n1(reference).into_iter().collect();
-    // Per keyframe: counts in the four image halves and in all.
-    let mut counts: BTreeMap<KeyframeId, [usize; 5]> = BTreeMap::new();
-    let (w, h) = params.image_size;
-    for (p, z) in &inliers {
-        for &o in graph
-            .point(*p)
-            .ok_or(GraphError::UnknownPoint(*p))?
-            .observers()
-        {
-            if near.contains(&o) {
+}
+
+/// A metric loop closure copied out of the graph: the pose problem of the matches and, per
+/// match, the old keyframes that observe its point.
+#[derive(Clone, Debug)]
+pub struct MetricLoopProblem<const N: usize> {
+    reference: KeyframeId,
+    matches: Vec<(PointId, SVector<f64, N>)>,
+    observers: Vec<Vec<KeyframeId>>,
+    pose: PoseProblem<N>,
+}
+
+/// The outcome of [`MetricLoopProblem::solve`]: what [`MetricLoopFit::apply`] writes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MetricLoopFit<const N: usize> {
+    reference: KeyframeId,
+    /// `T_loop`, the pose of the reference that explains the matches.
+    pub camera_from_world: Sim3,
+    /// The matches it explains.
+    pub inliers: Vec<(PointId, SVector<f64, N>)>,
+    /// The old keyframes that pass the tests, with the matches they share.
+    pub accepted: Vec<(KeyframeId, usize)>,
+}
+
+impl<const N: usize> MetricLoopProblem<N> {
+    /// The problem of `matches` (points of `N2 \ N1` found again in `reference`), or `None`
+    /// with fewer than six (a pose needs them).
+    pub fn from_graph(
+        graph: &SlamGraph<N>,
+        reference: KeyframeId,
+        matches: &[(PointId, SVector<f64, N>)],
+    ) -> Result<Option<Self>, ClosureError> {
+        if matches.len() < 6 {
+            return Ok(None);
+        }
+        // T_loop is estimated in the reference's metric: the points are expressed in its frame.
+        let t_ref = graph.pose(reference)?;
+        let near: BTreeSet<KeyframeId> = graph.n1(reference).into_iter().collect();
+        let observers = matches
+            .iter()
+            .map(|(p, _)| {
+                Ok(graph
+                    .point(*p)
+                    .ok_or(GraphError::UnknownPoint(*p))?
+                    .observers()
+                    .iter()
+                    .copied()
+                    .filter(|o| !near.contains(o))
+                    .collect())
+            })
+            .collect::<Result<_, GraphError>>()?;
+        Ok(Some(MetricLoopProblem {
+            reference,
+            matches: matches.to_vec(),
+            observers,
+            pose: PoseProblem::from_graph(graph, reference, matches, &t_ref)?,
+        }))
+    }
+
+    /// Fits `T_loop`, prunes the matches it does not explain and applies the tests (no graph
+    /// access).
+    pub fn solve<P: Projector<N> + Clone>(
+        &self,
+        projector: &P,
+        params: &MetricLoopParams,
+    ) -> Result<MetricLoopFit<N>, ClosureError> {
+        let fit = self
+            .pose
+            .solve(projector, &MotionOnlyOptions::robust(params.sigma))?;
+        let mut inliers = Vec::new();
+        // Per keyframe: counts in the four image halves and in all.
+        let mut counts: BTreeMap<KeyframeId, [usize; 5]> = BTreeMap::new();
+        let (w, h) = params.image_size;
+        for ((m, observers), &c) in self.matches.iter().zip(&self.observers).zip(&fit.chi2) {
+            if c > params.max_chi2 {
                 continue;
             }
-            let c = counts.entry(o).or_default();
-            c[0] += 1;
-            c[if z[0] < w / 2.0 { 1 } else { 2 }] += 1;
-            c[if z[1] < h / 2.0 { 3 } else { 4 }] += 1;
+            inliers.push(*m);
+            let z = &m.1;
+            for &o in observers {
+                let c = counts.entry(o).or_default();
+                c[0] += 1;
+                c[if z[0] < w / 2.0 { 1 } else { 2 }] += 1;
+                c[if z[1] < h / 2.0 { 3 } else { 4 }] += 1;
+            }
         }
+        let half = params.theta.div_ceil(2);
+        let accepted = counts
+            .iter()
+            .filter(|(_, c)| c[0] >= params.theta && c[1..].iter().all(|&n| n >= half))
+            .map(|(&k, c)| (k, c[0]))
+            .collect();
+        Ok(MetricLoopFit {
+            reference: self.reference,
+            camera_from_world: fit.camera_from_world,
+            inliers,
+            accepted,
+        })
     }
-    let half = params.theta.div_ceil(2);
-    let accepted: Vec<(KeyframeId, usize)> = counts
-        .iter()
-        .filter(|(_, c)| c[0] >= params.theta && c[1..].iter().all(|&n| n >= half))
-        .map(|(&k, c)| (k, c[0]))
-        .collect();
-    // The inliers are verified data association (mutually consistent with one pose): they
-    // become observations of the reference keyframe even when no edge passes the tests, so
-    // that tracking continues on the old points (they are now visible from `N1`) instead of
-    // duplicating them; local registration of the following keyframes then joins the old
-    // keyframes once they share `Θ` points.
-    for (p, z) in &inliers {
-        graph.add_observation(reference, *p, *z)?;
+}
+
+impl<const N: usize> MetricLoopFit<N> {
+    /// Writes the closure: the inliers become observations of the reference (they are verified
+    /// data association, consistent with one pose — also when no edge passes the tests, so that
+    /// tracking continues on the old points instead of duplicating them, and local
+    /// registration of the following keyframes joins the old keyframes once they share `Θ`
+    /// points), and each accepted keyframe gets its edge. Points and keyframes removed since
+    /// the problem was made are skipped.
+    pub fn apply(&self, graph: &mut SlamGraph<N>) -> Result<Vec<MetricLoopClosure>, GraphError> {
+        graph.pose(self.reference)?;
+        for (p, z) in &self.inliers {
+            match graph.add_observation(self.reference, *p, *z) {
+                Ok(()) | Err(GraphError::UnknownPoint(_)) => {}
+                Err(e) => return Err(e),
+            }
+        }
+        let mut out = Vec::new();
+        for &(k, shared) in &self.accepted {
+            let Ok(t_k) = graph.pose(k) else { continue };
+            let t_ref_k = self.camera_from_world.compose(&t_k.inverse());
+            graph.add_edge(k, self.reference, Some(t_ref_k))?;
+            out.push(MetricLoopClosure {
+                keyframe: k,
+                shared,
+            });
+        }
+        Ok(out)
     }
-    let mut out = Vec::new();
-    for (k, shared) in accepted {
-        let t_ref_k = fit.camera_from_world.compose(&graph.pose(k)?.inverse());
-        graph.add_edge(k, reference, Some(t_ref_k))?;
-        out.push(MetricLoopClosure {
-            keyframe: k,
-            shared,
-        });
-    }
-    Ok(out)
 }
 
 #[cfg(test)]

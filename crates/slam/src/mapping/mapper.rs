@@ -110,6 +110,38 @@ pub struct TrackedFrame<const N: usize> {
     pub version: Version,
 }
 
+/// A frame prepared for tracking ([`Mapper::prepare_track`]): what motion-only BA needs,
+/// copied out of the graph.
+#[derive(Clone, Debug)]
+pub struct PreparedFrame<const N: usize> {
+    given: Option<Sim3>,
+    problem: Option<tracking::PoseProblem<N>>,
+    matches: Vec<(PointId, SVector<f64, N>)>,
+    reference: Option<(KeyframeId, Sim3)>,
+    version: Version,
+}
+
+impl<const N: usize> PreparedFrame<N> {
+    /// Robust motion-only BA of the frame (no graph access), or the given pose.
+    pub fn solve<P: crate::factors::Projector<N> + Clone>(
+        self,
+        projector: &P,
+        options: &MotionOnlyOptions,
+    ) -> Result<TrackedFrame<N>, MappingError> {
+        let camera_from_world = match (self.given, &self.problem) {
+            (Some(pose), _) => pose,
+            (None, Some(problem)) => problem.solve(projector, options)?.camera_from_world,
+            (None, None) => return Err(MappingError::NoPose),
+        };
+        Ok(TrackedFrame {
+            camera_from_world,
+            matches: self.matches,
+            reference: self.reference,
+            version: self.version,
+        })
+    }
+}
+
 /// A revisit found by the front-end's place recognition (thesis §6.4.2): the old keyframe and,
 /// per correspondence, an old map point, its measurement in the new keyframe, and where the
 /// new keyframe has the point — one of its own map points, or `None` for the measurement's
@@ -184,35 +216,52 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
     /// Tracking (thesis §6.2.5): the pose of a frame that measures `matches` (points visible
     /// from `N1` of the reference), by robust motion-only BA from the constant-velocity
     /// prediction — or `given`, when the front-end knows the pose (the first keyframe, a
-    /// monocular bootstrap).
+    /// monocular bootstrap). [`prepare_track`](Self::prepare_track) then
+    /// [`PreparedFrame::solve`].
     pub fn track(
         &self,
         graph: &SlamGraph<N>,
         matches: Vec<(PointId, SVector<f64, N>)>,
         given: Option<Sim3>,
     ) -> Result<TrackedFrame<N>, MappingError> {
+        self.prepare_track(graph, matches, given)?
+            .solve(&self.camera, &self.config.tracking)
+    }
+
+    /// The part of [`track`](Self::track) that reads the graph (under a read lock in the live
+    /// system): the prediction and the points; the optimisation runs in
+    /// [`PreparedFrame::solve`], with no lock held.
+    pub fn prepare_track(
+        &self,
+        graph: &SlamGraph<N>,
+        matches: Vec<(PointId, SVector<f64, N>)>,
+        given: Option<Sim3>,
+    ) -> Result<PreparedFrame<N>, MappingError> {
         let reference = match graph.reference() {
             Some(r) => Some((r, graph.pose(r)?)),
             None => None,
         };
-        let camera_from_world = match (given, reference.map(|(r, _)| r)) {
-            (Some(pose), _) => pose,
+        let problem = match (given, reference) {
+            (Some(_), _) => None,
             (None, None) => return Err(MappingError::NoPose),
-            (None, Some(r)) => {
-                let guess = self.predict_pose(graph)?.unwrap_or(graph.pose(r)?);
-                tracking::estimate_pose(
-                    graph,
-                    r,
-                    &matches,
-                    &self.camera,
-                    &guess,
-                    &self.config.tracking,
-                )?
-                .camera_from_world
+            (None, Some((r, t_r))) => {
+                let need = self.config.tracking.min_matches;
+                if matches.len() < need {
+                    return Err(TrackingError::TooFewMatches {
+                        got: matches.len(),
+                        need,
+                    }
+                    .into());
+                }
+                let guess = self.predict_pose(graph)?.unwrap_or(t_r);
+                Some(tracking::PoseProblem::from_graph(
+                    graph, r, &matches, &guess,
+                )?)
             }
         };
-        Ok(TrackedFrame {
-            camera_from_world,
+        Ok(PreparedFrame {
+            given,
+            problem,
             matches,
             reference,
             version: graph.version(),
@@ -423,5 +472,107 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
                 .retain(|_, v| v.last().is_some_and(|(j, _)| young(*j)));
         }
         Ok(created)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geom::{PinholeCamera, StereoCamera};
+    use lie::Se3;
+
+    fn mapper() -> Mapper<StereoCamera, 3> {
+        let camera = StereoCamera::new(PinholeCamera::new(300.0, 300.0, 320.0, 240.0), 0.1);
+        Mapper::new(camera, MappingConfig::new(1.0, (640.0, 480.0), 3))
+    }
+
+    #[test]
+    fn a_frame_tracked_before_its_reference_moved_is_rebased_onto_it() {
+        let mut mapper = mapper();
+        let mut g = SlamGraph::<3>::new();
+        let first = mapper
+            .track(&g, Vec::new(), Some(Sim3::identity()))
+            .unwrap();
+        let (r, _) = mapper.insert_keyframe(&mut g, first).unwrap();
+        let tracked = Sim3::from_se3(&Se3::from_translation(Vector3::new(-0.1, 0.0, 0.0)));
+        // Unmoved reference: the pose goes in as tracked, bit for bit.
+        let frame = mapper.track(&g, Vec::new(), Some(tracked)).unwrap();
+        let (k, _) = mapper.insert_keyframe(&mut g, frame.clone()).unwrap();
+        assert_eq!(*g.keyframe(k).unwrap().camera_from_world(), tracked);
+        // A frame tracked against `r`, then `r` moves (a loop correction) before insertion.
+        let frame = TrackedFrame {
+            reference: Some((r, g.pose(r).unwrap())),
+            version: g.version(),
+            ..frame
+        };
+        let moved = Sim3::new(lie::So3::rot_y(0.1), Vector3::new(0.2, 0.0, 0.05), 1.0)
+            .unwrap()
+            .compose(&g.pose(r).unwrap());
+        g.set_pose(r, moved).unwrap();
+        let (k2, _) = mapper.insert_keyframe(&mut g, frame).unwrap();
+        // The relative pose to the reference is what tracking measured.
+        let relative = g.pose(k2).unwrap().compose(&g.pose(r).unwrap().inverse());
+        let expected = tracked; // the reference was the identity when tracked
+        assert!(
+            relative.compose(&expected.inverse()).log().norm() < 1e-12,
+            "{relative:?}"
+        );
+        g.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn points_come_from_disparity_or_wait_for_parallax() {
+        let mut mapper = mapper();
+        let mut g = SlamGraph::<3>::new();
+        let frame = mapper
+            .track(&g, Vec::new(), Some(Sim3::identity()))
+            .unwrap();
+        let (k0, _) = mapper.insert_keyframe(&mut g, frame).unwrap();
+        let near = Vector3::new(320.0, 240.0, 300.0); // 20 px of disparity: 1.5 m
+        let far = Vector3::new(100.0, 240.0, 99.5); // 0.5 px: too far for one measurement
+        let created = mapper
+            .add_points(
+                &mut g,
+                k0,
+                &[(1, near, false), (2, far, false), (3, near, true)],
+            )
+            .unwrap();
+        assert_eq!(created.len(), 1, "{created:?}");
+        assert_eq!(created[0].0, 1);
+        let y = g.point_in_frame(created[0].1, k0).unwrap();
+        assert!((y.z - 1.5).abs() < 1e-12, "{y}");
+        // The far point waits; a keyframe 5 m to the side gives the parallax to triangulate it
+        // (74 m away: 3.2°).
+        let frame = mapper
+            .track(
+                &g,
+                Vec::new(),
+                Some(Sim3::from_se3(&Se3::from_translation(Vector3::new(
+                    -5.0, 0.0, 0.0,
+                )))),
+            )
+            .unwrap();
+        let (k1, _) = mapper.insert_keyframe(&mut g, frame).unwrap();
+        // The same world point (60 m ahead, 44 m left) seen from 5 m further right.
+        let x0 = Vector3::new((100.0 - 320.0) / 300.0 * 60.0, 0.0, 60.0);
+        let x1 = x0 + Vector3::new(-5.0, 0.0, 0.0);
+        let z1 = Vector3::new(320.0 + 300.0 * x1.x / x1.z, 240.0, 0.0);
+        let created = mapper
+            .add_points(
+                &mut g,
+                k1,
+                &[(2, Vector3::new(z1.x, z1.y, z1.x - 0.3), false)],
+            )
+            .unwrap();
+        assert_eq!(created.len(), 1);
+        let p = created[0].1;
+        assert_eq!(
+            g.point(p).unwrap().anchor(),
+            k0,
+            "anchored where first seen"
+        );
+        let y = g.point_world(p).unwrap();
+        assert!((y - x0).norm() < 1e-6 * x0.norm(), "{y} vs {x0}");
+        g.check_invariants().unwrap();
     }
 }

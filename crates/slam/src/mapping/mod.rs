@@ -34,6 +34,8 @@ mod mapper;
 mod pipeline;
 pub mod registration;
 
-pub use mapper::{AppearanceMatch, Mapper, MappingConfig, MappingError, TrackedFrame};
+pub use mapper::{
+    AppearanceMatch, Mapper, MappingConfig, MappingError, PreparedFrame, TrackedFrame,
+};
 pub use pipeline::{FrontEnd, KeyframePipeline, KeyframeReport};
 pub use registration::register_locally;

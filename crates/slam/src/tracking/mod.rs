@@ -147,10 +147,65 @@ pub struct GraphPoseFit {
     pub chi2: Vec<f64>,
 }
 
+/// Motion-only BA of a camera against points of the graph, copied out of it
+/// ([`PoseProblem::from_graph`], under a read lock) and solved without it
+/// ([`PoseProblem::solve`]): no lock is held across the optimisation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseProblem<const N: usize> {
+    t_frame: Sim3,
+    points: Vec<Vector3<f64>>,
+    measurements: Vec<SVector<f64, N>>,
+    relative: Se3,
+}
+
+impl<const N: usize> PoseProblem<N> {
+    /// The problem of a camera measuring `matches` (map point and measurement), estimated
+    /// rigidly in the metric of keyframe `frame` (the points are expressed in its frame, so the
+    /// result keeps `frame`'s scale: `T = T_rel·T_frame`), from `initial`.
+    pub fn from_graph(
+        graph: &SlamGraph<N>,
+        frame: KeyframeId,
+        matches: &[(PointId, SVector<f64, N>)],
+        initial: &Sim3,
+    ) -> Result<Self, TrackingError> {
+        let t_frame = graph.pose(frame)?;
+        let points: Vec<Vector3<f64>> = matches
+            .iter()
+            .map(|(p, _)| graph.point_in_frame(*p, frame))
+            .collect::<Result<_, _>>()?;
+        // Rigid part of T·T_frame⁻¹; the scale of the initial guess relative to the frame is 1
+        // by construction of every caller (new keyframes inherit their reference's scale).
+        Ok(PoseProblem {
+            t_frame,
+            points,
+            measurements: matches.iter().map(|(_, z)| *z).collect(),
+            relative: initial.compose(&t_frame.inverse()).rigid_part(),
+        })
+    }
+
+    /// Robust motion-only BA ([`motion_only_ba`]).
+    pub fn solve<P: Projector<N> + Clone>(
+        &self,
+        projector: &P,
+        options: &MotionOnlyOptions,
+    ) -> Result<GraphPoseFit, TrackingError> {
+        let fit = motion_only_ba(
+            projector,
+            &self.relative,
+            &self.points,
+            &self.measurements,
+            options,
+        )?;
+        Ok(GraphPoseFit {
+            camera_from_world: Sim3::from_se3(&fit.camera_from_world).compose(&self.t_frame),
+            chi2: fit.chi2,
+        })
+    }
+}
+
 /// Motion-only BA ([`motion_only_ba`]) of a camera measuring `matches` (map point and
-/// measurement) of the graph, from `initial`. The pose is estimated rigidly in the metric of
-/// keyframe `frame` (the points are expressed in its frame), so the result keeps `frame`'s
-/// scale: `T = T_rel·T_frame`.
+/// measurement) of the graph, from `initial`, in the metric of keyframe `frame`
+/// ([`PoseProblem`] built and solved in one go).
 pub fn estimate_pose<P: Projector<N> + Clone, const N: usize>(
     graph: &SlamGraph<N>,
     frame: KeyframeId,
@@ -165,18 +220,5 @@ pub fn estimate_pose<P: Projector<N> + Clone, const N: usize>(
             need: options.min_matches,
         });
     }
-    let t_frame = graph.pose(frame)?;
-    let points: Vec<Vector3<f64>> = matches
-        .iter()
-        .map(|(p, _)| graph.point_in_frame(*p, frame))
-        .collect::<Result<_, _>>()?;
-    let measurements: Vec<SVector<f64, N>> = matches.iter().map(|(_, z)| *z).collect();
-    // Rigid part of T·T_frame⁻¹; the scale of the initial guess relative to the frame is 1 by
-    // construction of every caller (new keyframes inherit their reference's scale).
-    let relative = initial.compose(&t_frame.inverse()).rigid_part();
-    let fit = motion_only_ba(projector, &relative, &points, &measurements, options)?;
-    Ok(GraphPoseFit {
-        camera_from_world: Sim3::from_se3(&fit.camera_from_world).compose(&t_frame),
-        chi2: fit.chi2,
-    })
+    PoseProblem::from_graph(graph, frame, matches, initial)?.solve(projector, options)
 }
