@@ -121,7 +121,7 @@ fn bilinear_block_scalar(src: &[u8], stride: usize, n: usize, wts: [f32; 4], out
 #[target_feature(enable = "avx2")]
 unsafe fn bilinear_block_avx2(src: &[u8], stride: usize, n: usize, wts: [f32; 4], out: &mut [f32]) {
     use std::arch::x86_64::*;
-    debug_assert!(n >= 8 && src.len() >= n * stride + n + 1 && out.len() >= n * n);
+    debug_assert!(n >= 8 && src.len() > n * stride + n && out.len() >= n * n);
     // SAFETY: loads read src[r·stride + i .. + 9] and src[(r+1)·stride + i .. + 9] with
     // i ≤ n − 8, inside the (n+1)² block; stores write out[r·n + i .. + 8] ⊂ out[..n²].
     unsafe {
