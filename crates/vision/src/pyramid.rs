@@ -308,12 +308,7 @@ fn blur_impl(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
     let mut tmp = vec![0u16; w * h];
     let mut buf = vec![0u8; w + 2 * radius];
     for y in 0..h {
-        let row = img.row(y);
-        buf[radius..radius + w].copy_from_slice(row);
-        for i in 0..radius {
-            buf[i] = row[0];
-            buf[radius + w + i] = row[w - 1];
-        }
+        pad_row(img.row(y), radius, &mut buf);
         let acc = &mut tmp[y * w..(y + 1) * w];
         for (j, &kj) in k.iter().enumerate() {
             for (a, &p) in acc.iter_mut().zip(&buf[j..j + w]) {
@@ -338,6 +333,16 @@ fn blur_impl(img: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
     out
 }
 
+/// Copies `row` into `buf[r..r + w]` and replicates its end pixels into the `r` entries on
+/// either side (`buf` has `w + 2r` entries).
+#[inline(always)]
+fn pad_row(row: &[u8], r: usize, buf: &mut [u8]) {
+    let w = row.len();
+    buf[r..r + w].copy_from_slice(row);
+    buf[..r].fill(row[0]);
+    buf[r + w..r + w + r].fill(row[w - 1]);
+}
+
 /// [`blur_impl`] for a fixed number of taps `T = 2r + 1`: the same integer sums (exact, so
 /// identical results), with the taps unrolled so that each output is accumulated in registers
 /// (one pass per row instead of one per tap).
@@ -349,12 +354,7 @@ fn blur_taps<const T: usize>(img: &GrayImage, k: &[u16]) -> GrayImage {
     let mut tmp = vec![0u16; w * h];
     let mut buf = vec![0u8; w + 2 * r];
     for y in 0..h {
-        let row = img.row(y);
-        buf[r..r + w].copy_from_slice(row);
-        for i in 0..r {
-            buf[i] = row[0];
-            buf[r + w + i] = row[w - 1];
-        }
+        pad_row(img.row(y), r, &mut buf);
         let windows: [&[u8]; T] = std::array::from_fn(|j| &buf[j..j + w]);
         for (x, a) in tmp[y * w..(y + 1) * w].iter_mut().enumerate() {
             let mut s = 0u16;
