@@ -333,3 +333,49 @@ pub fn associate_trajectories(
 pub fn relative(a: &Se3, b: &Se3) -> Se3 {
     a.inverse().compose(b)
 }
+
+/// One-to-one association of two timestamp lists as TUM RGB-D's `associate.py` does it: every
+/// pair `(a, b)` with `|a − (b + offset)| < max_difference` is a candidate; candidates are taken
+/// in increasing order of that difference (ties by `a`, then `b`), each timestamp of either list
+/// at most once. Returns `(index in first, index in second)` pairs sorted by the first index.
+/// Both lists are expected sorted (candidates are found by a sliding window; unsorted lists
+/// give a subset of `associate.py`'s pairs).
+pub fn associate_unique(
+    first: &[f64],
+    second: &[f64],
+    offset: f64,
+    max_difference: f64,
+) -> Vec<(usize, usize)> {
+    let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
+    let mut start = 0;
+    for (i, &a) in first.iter().enumerate() {
+        while start < second.len() && second[start] + offset <= a - max_difference {
+            start += 1;
+        }
+        let mut j = start;
+        while j < second.len() && second[j] + offset < a + max_difference {
+            let d = (a - (second[j] + offset)).abs();
+            if d < max_difference {
+                candidates.push((d, i, j));
+            }
+            j += 1;
+        }
+    }
+    candidates.sort_by(|x, y| {
+        x.0.total_cmp(&y.0)
+            .then(first[x.1].total_cmp(&first[y.1]))
+            .then(second[x.2].total_cmp(&second[y.2]))
+    });
+    let mut used_first = vec![false; first.len()];
+    let mut used_second = vec![false; second.len()];
+    let mut pairs = Vec::new();
+    for (_, i, j) in candidates {
+        if !used_first[i] && !used_second[j] {
+            used_first[i] = true;
+            used_second[j] = true;
+            pairs.push((i, j));
+        }
+    }
+    pairs.sort();
+    pairs
+}
