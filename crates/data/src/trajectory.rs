@@ -379,3 +379,59 @@ pub fn associate_unique(
     pairs.sort();
     pairs
 }
+
+/// The trajectory file formats [`read_trajectory`] tells apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrajectoryFormat {
+    /// `timestamp tx ty tz qx qy qz qw`.
+    Tum,
+    /// 12 numbers per line, no timestamps.
+    Kitti,
+    /// EuRoC ground-truth CSV (nanoseconds, comma-separated).
+    Euroc,
+}
+
+/// The format of trajectory text from its first data line: comma-separated with ≥ 8 fields is
+/// EuRoC, 8 fields TUM, 12 fields KITTI.
+pub fn detect_trajectory_format(text: &str, path: &Path) -> Result<TrajectoryFormat, DataError> {
+    for (i, line) in text.lines().enumerate() {
+        let t = line.trim();
+        if t.is_empty() || t.starts_with('#') {
+            continue;
+        }
+        let commas = t.split(',').count();
+        let words = t.split_whitespace().count();
+        return match (commas, words) {
+            (c, _) if c >= 8 => Ok(TrajectoryFormat::Euroc),
+            (_, 8) => Ok(TrajectoryFormat::Tum),
+            (_, 12) => Ok(TrajectoryFormat::Kitti),
+            _ => Err(DataError::Parse {
+                path: path.to_path_buf(),
+                line: i + 1,
+                kind: ParseErrorKind::Expected {
+                    expected: "a trajectory line: TUM (8 numbers), KITTI (12) or EuRoC CSV (≥ 8 \
+                               comma-separated)"
+                        .into(),
+                    found: format!("{words} space-separated fields"),
+                },
+            }),
+        };
+    }
+    Err(empty_error(path, "trajectory lines"))
+}
+
+/// Reads a trajectory in any of the [`TrajectoryFormat`]s (KITTI poses get timestamps
+/// `0, 1, 2, …`, i.e. they associate by index, as evo's `kitti` mode).
+pub fn read_trajectory(
+    path: impl AsRef<Path>,
+) -> Result<(Trajectory, TrajectoryFormat), DataError> {
+    let path = path.as_ref();
+    let text = read_to_string(path)?;
+    let format = detect_trajectory_format(&text, path)?;
+    let t = match format {
+        TrajectoryFormat::Tum => parse_tum(&text, path)?,
+        TrajectoryFormat::Kitti => Trajectory::from_poses(parse_kitti(&text, path)?),
+        TrajectoryFormat::Euroc => parse_euroc_groundtruth(&text, path)?,
+    };
+    Ok((t, format))
+}
