@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 mod ba;
+mod eval;
 mod experiment;
 mod inspect;
 mod pgo;
@@ -22,6 +23,8 @@ enum Command {
     /// Reproduce an experiment of the thesis.
     #[command(subcommand)]
     Experiment(experiment::ExperimentCommand),
+    /// Trajectory errors (ATE, RPE) of an estimate against ground truth, as evo computes them.
+    Eval(eval::EvalArgs),
     /// Pose-graph optimisation of a g2o file (SE(2), SE(3) or Sim(3)).
     Pgo(pgo::PgoArgs),
     /// Bundle adjustment of a BAL problem or a synthetic scene.
@@ -38,6 +41,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Experiment(cmd) => experiment::run(cmd),
+        Command::Eval(args) => eval::run(args),
         Command::Pgo(args) => pgo::run(args),
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),

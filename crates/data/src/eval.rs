@@ -128,6 +128,10 @@ pub struct RpeResult {
     pub rotation_rad: Statistics,
     /// The index pairs used.
     pub pairs: Vec<(usize, usize)>,
+    /// `‖t(E_ij)‖` per pair, in the order of `pairs`.
+    pub translation_errors: Vec<f64>,
+    /// `angle(R(E_ij))` per pair, radians.
+    pub rotation_errors_rad: Vec<f64>,
 }
 
 /// `S·P`: a similarity applied to a rigid pose (rotation `R_S·R_P`, translation
@@ -230,5 +234,7 @@ pub fn rpe(
         translation: Statistics::of(&translation).expect("non-empty"),
         rotation_rad: Statistics::of(&rotation).expect("non-empty"),
         pairs,
+        translation_errors: translation,
+        rotation_errors_rad: rotation,
     })
 }
