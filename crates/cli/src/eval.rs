@@ -5,10 +5,12 @@
 use crate::plot::{self, Figure, GREY, PALETTE, Series, Style};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, ValueEnum};
-use data::eval::{Alignment, Statistics, apply_similarity, ate, rpe};
+use data::eval::{Alignment, Statistics, apply_similarity, ate, rpe, rpe_matrices};
 use data::output::{GROUND_TRUTH_FILE, TRAJECTORY_FILE, find_run_files};
 use data::sequence::{OpenOptions, Sequence};
-use data::trajectory::{Trajectory, TrajectoryFormat, associate, read_trajectory};
+use data::trajectory::{
+    Trajectory, TrajectoryFormat, associate, read_kitti_matrices, read_trajectory,
+};
 use lie::Se3;
 use nalgebra::Vector3;
 use std::fmt::Display;
@@ -288,9 +290,25 @@ pub fn run(args: EvalArgs) -> Result<()> {
         .collect();
     let alignment: Alignment = args.align.into();
     let ate = ate(&r, &e, alignment).map_err(flat).context("ATE")?;
-    let rpe = rpe(&r, &e, args.rpe_delta, args.rpe_all_pairs, alignment)
-        .map_err(flat)
-        .context("RPE")?;
+    let rpe = if reference.indexed {
+        // KITTI files: evo computes RPE on the stored (7-digit, not exactly orthonormal)
+        // matrices; so do we, to report the same numbers.
+        let mr = read_kitti_matrices(&reference.path).map_err(flat)?;
+        let me = read_kitti_matrices(&estimate.path).map_err(flat)?;
+        let mr: Vec<_> = pairs.iter().map(|&(i, _)| mr[i]).collect();
+        let me: Vec<_> = pairs.iter().map(|&(_, j)| me[j]).collect();
+        rpe_matrices(
+            &mr,
+            &me,
+            &ate.reference_from_estimate,
+            args.rpe_delta,
+            args.rpe_all_pairs,
+        )
+    } else {
+        rpe(&r, &e, args.rpe_delta, args.rpe_all_pairs, alignment)
+    }
+    .map_err(flat)
+    .context("RPE")?;
     let s = &ate.reference_from_estimate;
     let deg = 180.0 / std::f64::consts::PI;
 

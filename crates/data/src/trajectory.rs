@@ -136,6 +136,31 @@ pub fn read_kitti(path: impl AsRef<Path>) -> Result<Vec<Se3>, DataError> {
 
 /// Parses KITTI pose text; `path` only names the source in errors.
 pub fn parse_kitti(text: &str, path: &Path) -> Result<Vec<Se3>, DataError> {
+    parse_kitti_rows(text, path)?
+        .into_iter()
+        .map(|(line, m)| {
+            Se3::from_matrix_with_tolerance(&m, KITTI_ORTHONORMALITY_TOLERANCE).map_err(|source| {
+                At { path, line }.err(ParseErrorKind::InvalidRotation {
+                    what: "rotation block".into(),
+                    source,
+                })
+            })
+        })
+        .collect()
+}
+
+/// Reads a KITTI pose file as the 4×4 matrices it stores, not re-orthonormalised (KITTI prints
+/// 7 digits, so the rotation blocks are orthonormal to ~1e-7); evo computes with these, and
+/// so does [`crate::eval::rpe_matrices`] to agree with it.
+pub fn read_kitti_matrices(path: impl AsRef<Path>) -> Result<Vec<Matrix4<f64>>, DataError> {
+    let path = path.as_ref();
+    let rows = parse_kitti_rows(&read_to_string(path)?, path)?;
+    // Validated as poses like `read_kitti` does.
+    parse_kitti(&read_to_string(path)?, path)?;
+    Ok(rows.into_iter().map(|(_, m)| m).collect())
+}
+
+fn parse_kitti_rows(text: &str, path: &Path) -> Result<Vec<(usize, Matrix4<f64>)>, DataError> {
     let mut poses = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let at = At { path, line: i + 1 };
@@ -146,15 +171,7 @@ pub fn parse_kitti(text: &str, path: &Path) -> Result<Vec<Se3>, DataError> {
             m[(k / 4, k % 4)] =
                 at.number(w[k], &format!("entry ({}, {})", k / 4 + 1, k % 4 + 1))?;
         }
-        let pose = Se3::from_matrix_with_tolerance(&m, KITTI_ORTHONORMALITY_TOLERANCE).map_err(
-            |source| {
-                at.err(ParseErrorKind::InvalidRotation {
-                    what: "rotation block".into(),
-                    source,
-                })
-            },
-        )?;
-        poses.push(pose);
+        poses.push((i + 1, m));
     }
     if poses.is_empty() {
         return Err(empty_error(path, "KITTI poses"));
