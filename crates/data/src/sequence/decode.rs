@@ -36,6 +36,17 @@ fn luma(planes: &RgbPlanes) -> GrayImage {
     })
 }
 
+/// A decoder error: a read that ended early is a truncated image, other I/O errors are I/O.
+fn decode_kind(e: image::ImageError) -> FrameErrorKind {
+    match e {
+        image::ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            FrameErrorKind::Decode(format!("the file is truncated ({io})"))
+        }
+        image::ImageError::IoError(io) => FrameErrorKind::Io(io.to_string()),
+        other => FrameErrorKind::Decode(other.to_string()),
+    }
+}
+
 impl Decoder {
     pub fn new(calibration: &Calibration, raw: bool, colour: bool) -> Result<Decoder, String> {
         let primary = calibration.primary();
@@ -110,10 +121,7 @@ impl Decoder {
             FrameErrorKind::Missing
         } else {
             match e {
-                ImageError::Decode { source, .. } => match source {
-                    image::ImageError::IoError(io) => FrameErrorKind::Io(io.to_string()),
-                    other => FrameErrorKind::Decode(other.to_string()),
-                },
+                ImageError::Decode { source, .. } => decode_kind(source),
                 ImageError::Empty { width, height, .. } => {
                     FrameErrorKind::Decode(format!("the image is empty ({width}×{height})"))
                 }
@@ -188,10 +196,7 @@ impl Decoder {
                     index,
                     t,
                     path,
-                    match e {
-                        image::ImageError::IoError(io) => FrameErrorKind::Io(io.to_string()),
-                        other => FrameErrorKind::Decode(other.to_string()),
-                    },
+                    decode_kind(e),
                 )
             })?;
         let (w, h) = (img.width() as usize, img.height() as usize);
