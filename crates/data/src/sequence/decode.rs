@@ -191,14 +191,7 @@ impl Decoder {
             .and_then(|r| r.with_guessed_format())
             .map_err(|e| Self::err(index, t, path, FrameErrorKind::Io(e.to_string())))?
             .decode()
-            .map_err(|e| {
-                Self::err(
-                    index,
-                    t,
-                    path,
-                    decode_kind(e),
-                )
-            })?;
+            .map_err(|e| Self::err(index, t, path, decode_kind(e)))?;
         let (w, h) = (img.width() as usize, img.height() as usize);
         let raw = match img {
             image::DynamicImage::ImageLuma16(buf) => Image::from_vec(w, h, w, buf.into_raw())
