@@ -2,7 +2,9 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use std::process::ExitCode;
 
+mod args;
 mod ba;
 mod eval;
 mod experiment;
@@ -37,9 +39,20 @@ enum Command {
     Demo,
 }
 
-fn main() -> Result<()> {
+fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {
+    match run(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One line, each cause once; no backtrace for a user's mistake.
+            eprintln!("error: {}", args::describe(&e));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(command: Command) -> Result<()> {
+    match command {
         Command::Experiment(cmd) => experiment::run(cmd),
         Command::Eval(args) => eval::run(args),
         Command::Pgo(args) => pgo::run(args),

@@ -33,20 +33,30 @@
 //! A track that is not measured in a frame ends: its map point leaves the active set (and its
 //! filter is dropped). A world point seen again later is a new track — only loop closure
 //! ([`crate::loop_closure`]) relates it to the old one.
+//!
+//! The map is a [`SlamGraph`] ([`ExploredMap`]): keyframes with absolute poses (similarities
+//! of scale 1 until a loop correction), points anchored in the keyframe their filter started
+//! in, by inverse depth. The window BA optimises Euclidean points (the parametrisation of
+//! §3.3.3) and writes them back anchored.
 
-use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation, PointObservation};
-use crate::feature_init::{FeatureFilters, FeatureId, FeatureInitConfig};
+pub mod feature_init;
+
+use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
+use crate::factors::point_to_inverse_depth;
+use crate::map::{KeyframeId, PointId, SlamGraph};
+use crate::tracking::{MotionOnlyOptions, motion_only_ba};
+use feature_init::{FeatureFilters, FeatureId, FeatureInitConfig};
 use geom::ransac::RansacConfig;
 use geom::two_view::{relative_pose_ransac, triangulate};
 use geom::{CameraModel, PinholeCamera};
-use lie::{LieGroup, Se3};
-use lsq::{Information, RobustKernel, SolverOptions, Var};
+use lie::{LieGroup, Se3, Sim3};
+use lsq::{RobustKernel, SolverOptions};
 use nalgebra::{Vector2, Vector3};
+use std::collections::BTreeMap;
 use std::collections::{HashMap, HashSet};
 use vision::quadtree::{QuadPoint, QuadTree};
 
-/// The identity of a feature track (from the front-end; in simulation, the world point).
-pub type TrackId = u64;
+pub use crate::tracking::TrackId;
 
 /// Parameters of [`MonoExplorer`].
 #[derive(Clone, Debug)]
@@ -122,30 +132,91 @@ impl Default for ExplorationConfig {
     }
 }
 
-/// A keyframe.
+/// The front-end's view of a keyframe: the frame it was made from and every measurement in
+/// it, of map points or not (for loop closure).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Keyframe {
+pub struct KeyframeFrame {
     /// The frame index given to [`MonoExplorer::process`].
     pub frame: usize,
-    /// Its estimated `camera_from_world`.
-    pub camera_from_world: Se3,
-    /// Measurements of map points: `(point index, z)`.
-    pub observations: Vec<(usize, Vector2<f64>)>,
-    /// Every measurement of the frame: `(track, z)` (for loop closure).
+    /// Every measurement of the frame: `(track, z)`.
     pub measurements: Vec<(TrackId, Vector2<f64>)>,
 }
 
-/// A map point.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MapPoint {
-    /// The track it was initialised from.
-    pub track: TrackId,
-    /// Its estimated position.
-    pub point_world: Vector3<f64>,
-    /// The keyframe it was first seen in (its filter's anchor).
-    pub anchor_keyframe: usize,
-    /// Its measurements: `(keyframe index, z)`.
-    pub observations: Vec<(usize, Vector2<f64>)>,
+/// The map an exploration builds: the SLAM graph, and the front-end's identities of its
+/// keyframes and points.
+#[derive(Clone, Debug, Default)]
+pub struct ExploredMap {
+    /// Keyframes, anchored inverse-depth points and their measurements.
+    pub graph: SlamGraph<2>,
+    /// Per keyframe (indexed by [`KeyframeId::index`]): its frame and measurements.
+    pub keyframes: Vec<KeyframeFrame>,
+    /// Per point (indexed by [`PointId::index`]): the track it was initialised from.
+    pub tracks: Vec<TrackId>,
+}
+
+impl ExploredMap {
+    /// The frame and measurements of keyframe `k`.
+    pub fn keyframe(&self, k: KeyframeId) -> &KeyframeFrame {
+        &self.keyframes[k.index()]
+    }
+
+    /// The track of point `p`.
+    pub fn track(&self, p: PointId) -> TrackId {
+        self.tracks[p.index()]
+    }
+
+    /// The keyframes in order of creation.
+    pub fn keyframe_ids(&self) -> impl Iterator<Item = KeyframeId> + '_ {
+        (0..self.keyframes.len()).map(KeyframeId::from_index)
+    }
+
+    /// The rigid pose of keyframe `k` (`(R, t/s)` of its similarity, see
+    /// [`crate::pose_graph::rigid_from_similarity`]).
+    pub fn rigid_pose(&self, k: KeyframeId) -> Se3 {
+        crate::pose_graph::rigid_from_similarity(
+            self.graph
+                .keyframe(k)
+                .expect("keyframes are never removed")
+                .camera_from_world(),
+        )
+    }
+
+    /// The rigid poses of every keyframe, in order.
+    pub fn rigid_poses(&self) -> Vec<Se3> {
+        self.keyframe_ids().map(|k| self.rigid_pose(k)).collect()
+    }
+
+    fn add_keyframe(
+        &mut self,
+        frame: usize,
+        pose: Se3,
+        measurements: &[(TrackId, Vector2<f64>)],
+    ) -> KeyframeId {
+        let k = self.graph.add_keyframe(Sim3::from_se3(&pose));
+        debug_assert_eq!(k.index(), self.keyframes.len());
+        self.keyframes.push(KeyframeFrame {
+            frame,
+            measurements: measurements.to_vec(),
+        });
+        k
+    }
+
+    /// A point of `track` at `point_world`, anchored in `anchor`, which measures it as `z`;
+    /// `None` if it is not in front of the anchor.
+    fn add_point(
+        &mut self,
+        track: TrackId,
+        anchor: KeyframeId,
+        point_world: &Vector3<f64>,
+        z: Vector2<f64>,
+    ) -> Option<PointId> {
+        let t_a = *self.graph.keyframe(anchor)?.camera_from_world();
+        let psi = point_to_inverse_depth(&t_a.act(point_world))?;
+        let p = self.graph.add_point(anchor, psi, z).ok()?;
+        debug_assert_eq!(p.index(), self.tracks.len());
+        self.tracks.push(track);
+        Some(p)
+    }
 }
 
 /// What [`MonoExplorer::process`] did with a frame.
@@ -153,8 +224,8 @@ pub struct MapPoint {
 pub struct FrameOutcome {
     /// The frame's estimated pose, `None` while bootstrapping.
     pub camera_from_world: Option<Se3>,
-    /// The keyframe index if the frame became one.
-    pub keyframe: Option<usize>,
+    /// The keyframe if the frame became one.
+    pub keyframe: Option<KeyframeId>,
     /// Map points tracked.
     pub tracked: usize,
     /// Features promoted to the map in this frame.
@@ -216,13 +287,12 @@ enum State {
 pub struct MonoExplorer {
     camera: PinholeCamera,
     config: ExplorationConfig,
-    keyframes: Vec<Keyframe>,
-    points: Vec<MapPoint>,
+    map: ExploredMap,
     /// Tracks with a map point that were measured in the last frame.
-    active: HashMap<TrackId, usize>,
+    active: HashMap<TrackId, PointId>,
     filters: FeatureFilters<PinholeCamera, 2>,
     filter_of_track: HashMap<TrackId, FeatureId>,
-    keyframe_of_frame: HashMap<usize, usize>,
+    keyframe_of_frame: HashMap<usize, KeyframeId>,
     frame_poses: Vec<(usize, Se3)>,
     state: State,
 }
@@ -254,8 +324,7 @@ impl MonoExplorer {
             camera,
             filters: FeatureFilters::new(camera, fi),
             config,
-            keyframes: Vec::new(),
-            points: Vec::new(),
+            map: ExploredMap::default(),
             active: HashMap::new(),
             filter_of_track: HashMap::new(),
             keyframe_of_frame: HashMap::new(),
@@ -264,14 +333,9 @@ impl MonoExplorer {
         }
     }
 
-    /// The keyframes so far.
-    pub fn keyframes(&self) -> &[Keyframe] {
-        &self.keyframes
-    }
-
-    /// The map points so far.
-    pub fn points(&self) -> &[MapPoint] {
-        &self.points
+    /// The map so far.
+    pub fn map(&self) -> &ExploredMap {
+        &self.map
     }
 
     /// `(frame, camera_from_world)` of every tracked frame (keyframe poses as last optimised).
@@ -279,7 +343,7 @@ impl MonoExplorer {
         self.frame_poses
             .iter()
             .map(|(f, t)| match self.keyframe_of_frame.get(f) {
-                Some(&k) => (*f, self.keyframes[k].camera_from_world),
+                Some(&k) => (*f, self.map.rigid_pose(k)),
                 None => (*f, *t),
             })
             .collect()
@@ -290,9 +354,9 @@ impl MonoExplorer {
         self.filters.len()
     }
 
-    /// Consumes the explorer, returning its keyframes and map points.
-    pub fn into_map(self) -> (Vec<Keyframe>, Vec<MapPoint>) {
-        (self.keyframes, self.points)
+    /// Consumes the explorer, returning its map.
+    pub fn into_map(self) -> ExploredMap {
+        self.map
     }
 
     /// Processes one frame's measurements `(track, z)` (pixels).
@@ -474,37 +538,24 @@ impl MonoExplorer {
         let second = Se3::new(*poses[1].rotation(), poses[1].translation() / scale);
         let points: Vec<Vector3<f64>> = ba.points_world().iter().map(|p| p / scale).collect();
         // Keyframes 0 and 1, map points anchored in keyframe 0.
-        self.keyframes.push(Keyframe {
-            frame: first,
-            camera_from_world: Se3::identity(),
-            observations: Vec::new(),
-            measurements: first_measurements.to_vec(),
-        });
-        self.keyframes.push(Keyframe {
-            frame,
-            camera_from_world: second,
-            observations: Vec::new(),
-            measurements: measurements.to_vec(),
-        });
-        self.keyframe_of_frame.insert(first, 0);
-        self.keyframe_of_frame.insert(frame, 1);
+        let k0 = self
+            .map
+            .add_keyframe(first, Se3::identity(), first_measurements);
+        let k1 = self.map.add_keyframe(frame, second, measurements);
+        self.keyframe_of_frame.insert(first, k0);
+        self.keyframe_of_frame.insert(frame, k1);
         for ((i, _), p) in pts.iter().zip(points) {
-            let index = self.points.len();
-            self.points.push(MapPoint {
-                track: tracks[*i],
-                point_world: p,
-                anchor_keyframe: 0,
-                observations: Vec::new(),
-            });
-            self.add_observation(0, index, z_a[*i]);
-            self.add_observation(1, index, z_b[*i]);
-            self.active.insert(tracks[*i], index);
+            let Some(point) = self.map.add_point(tracks[*i], k0, &p, z_a[*i]) else {
+                continue;
+            };
+            self.add_observation(k1, point, z_b[*i]);
+            self.active.insert(tracks[*i], point);
         }
         self.frame_poses.push((first, Se3::identity()));
         self.frame_poses.push((frame, second));
         let steps = (frame - first) as f64;
         let velocity = Se3::exp(&(second.log() / steps));
-        let started = self.start_features(1, frame, measurements);
+        let started = self.start_features(k1, frame, measurements);
         self.state = State::Tracking {
             last_frame: frame,
             last_pose: second,
@@ -512,7 +563,7 @@ impl MonoExplorer {
         };
         Ok(FrameOutcome {
             camera_from_world: Some(second),
-            keyframe: Some(1),
+            keyframe: Some(k1),
             tracked: self.active.len(),
             promoted: 0,
             started,
@@ -520,9 +571,11 @@ impl MonoExplorer {
         })
     }
 
-    fn add_observation(&mut self, keyframe: usize, point: usize, z: Vector2<f64>) {
-        self.keyframes[keyframe].observations.push((point, z));
-        self.points[point].observations.push((keyframe, z));
+    fn add_observation(&mut self, keyframe: KeyframeId, point: PointId, z: Vector2<f64>) {
+        self.map
+            .graph
+            .add_observation(keyframe, point, z)
+            .expect("the explorer's keyframes and points exist");
     }
 
     fn track(
@@ -539,7 +592,7 @@ impl MonoExplorer {
         if steps > 0.0 {
             predicted = Se3::exp(&(velocity.log() * steps)).compose(&last_pose);
         }
-        let tracked: Vec<(usize, Vector2<f64>)> = measurements
+        let tracked: Vec<(PointId, Vector2<f64>)> = measurements
             .iter()
             .filter_map(|(t, z)| self.active.get(t).map(|&p| (p, *z)))
             .collect();
@@ -554,22 +607,17 @@ impl MonoExplorer {
         // 2. Keyframe decision by distance relative to the median scene depth.
         let mut depths: Vec<f64> = tracked
             .iter()
-            .map(|(p, _)| pose.act(&self.points[*p].point_world).z)
+            .filter_map(|(p, _)| self.map.graph.point_world(*p).ok())
+            .map(|y| pose.act(&y).z)
             .filter(|d| *d > 0.0)
             .collect();
         let median_depth = median(&mut depths).unwrap_or(1.0);
-        let last_kf = self.keyframes.last().expect("bootstrapped");
-        let distance = (centre(&pose) - centre(&last_kf.camera_from_world)).norm();
+        let last_kf = KeyframeId::from_index(self.map.keyframes.len() - 1);
+        let distance = (centre(&pose) - centre(&self.map.rigid_pose(last_kf))).norm();
         let is_keyframe = distance > self.config.keyframe_distance * median_depth
             || tracked.len() < self.config.min_tracked_for_keyframe;
         let keyframe = is_keyframe.then(|| {
-            let k = self.keyframes.len();
-            self.keyframes.push(Keyframe {
-                frame,
-                camera_from_world: pose,
-                observations: Vec::new(),
-                measurements: measurements.to_vec(),
-            });
+            let k = self.map.add_keyframe(frame, pose, measurements);
             self.keyframe_of_frame.insert(frame, k);
             for (p, z) in &tracked {
                 self.add_observation(k, *p, *z);
@@ -598,7 +646,7 @@ impl MonoExplorer {
         if let Some(k) = keyframe {
             started = self.start_features(k, frame, measurements);
             self.window_ba()?;
-            pose = self.keyframes[k].camera_from_world;
+            pose = self.map.rigid_pose(k);
         }
         self.frame_poses.push((frame, pose));
         self.state = State::Tracking {
@@ -619,30 +667,30 @@ impl MonoExplorer {
     fn motion_only(
         &self,
         predicted: Se3,
-        tracked: &[(usize, Vector2<f64>)],
+        tracked: &[(PointId, Vector2<f64>)],
     ) -> Result<Se3, ExplorationError> {
-        let mut problem = lsq::Problem::new();
-        let pose = problem.add_variable(predicted);
-        for (p, z) in tracked {
-            let point = problem.add_variable(self.points[*p].point_world);
-            problem.set_fixed(point.key(), true);
-            problem
-                .add_factor(
-                    PointObservation {
-                        camera_from_world: pose,
-                        point_world: point,
-                        measurement: *z,
-                        projector: self.camera,
-                    },
-                    Information::Isotropic(self.config.sigma),
-                    Some(RobustKernel::Huber(self.config.huber)),
-                )
-                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        }
-        problem
-            .optimise(&solver(self.config.tracking_iterations))
-            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        Ok(*problem.value(pose))
+        let (points, measurements): (Vec<Vector3<f64>>, Vec<Vector2<f64>>) = tracked
+            .iter()
+            .map(|(p, z)| {
+                let y = self
+                    .map
+                    .graph
+                    .point_world(*p)
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+                Ok((y, *z))
+            })
+            .collect::<Result<Vec<_>, ExplorationError>>()?
+            .into_iter()
+            .unzip();
+        let options = MotionOnlyOptions {
+            sigma: self.config.sigma,
+            kernel: Some(RobustKernel::Huber(self.config.huber)),
+            iterations: self.config.tracking_iterations,
+            min_matches: self.config.min_tracked,
+        };
+        motion_only_ba(&self.camera, &predicted, &points, &measurements, &options)
+            .map(|fit| fit.camera_from_world)
+            .map_err(|e| ExplorationError::Optimisation(e.to_string()))
     }
 
     /// Promotes converged filters to map points with their keyframe measurements.
@@ -656,20 +704,27 @@ impl MonoExplorer {
                 continue;
             };
             self.filter_of_track.remove(&track);
-            let index = self.points.len();
             let anchor = self.keyframe_of_frame[&f.anchor_frame];
-            self.points.push(MapPoint {
-                track,
-                point_world: f.point_world(),
-                anchor_keyframe: anchor,
-                observations: Vec::new(),
-            });
+            // The filter's anchor frame is a keyframe (filters start in keyframes), which
+            // measures the feature first.
+            let Some(&(_, z_anchor)) = f.observations.iter().find(|(fr, _)| *fr == f.anchor_frame)
+            else {
+                continue;
+            };
+            let Some(point) = self
+                .map
+                .add_point(track, anchor, &f.point_world(), z_anchor)
+            else {
+                continue;
+            };
             for (frame, z) in &f.observations {
-                if let Some(&k) = self.keyframe_of_frame.get(frame) {
-                    self.add_observation(k, index, *z);
+                if let Some(&k) = self.keyframe_of_frame.get(frame)
+                    && k != anchor
+                {
+                    self.add_observation(k, point, *z);
                 }
             }
-            self.active.insert(track, index);
+            self.active.insert(track, point);
         }
         n
     }
@@ -677,7 +732,7 @@ impl MonoExplorer {
     /// Starts filters in keyframe `k` where the feature density is low (thesis §3.4.3).
     fn start_features(
         &mut self,
-        k: usize,
+        k: KeyframeId,
         frame: usize,
         measurements: &[(TrackId, Vector2<f64>)],
     ) -> usize {
@@ -710,11 +765,15 @@ impl MonoExplorer {
         if count >= self.config.max_features || candidates.is_empty() {
             return 0;
         }
-        let anchor = self.keyframes[k].camera_from_world;
-        let mut inverse_depths: Vec<f64> = self.keyframes[k]
-            .observations
-            .iter()
-            .map(|(p, _)| 1.0 / anchor.act(&self.points[*p].point_world).z)
+        let anchor = self.map.rigid_pose(k);
+        let graph = &self.map.graph;
+        let mut inverse_depths: Vec<f64> = graph
+            .keyframe(k)
+            .expect("a keyframe of the map")
+            .observations()
+            .keys()
+            .filter_map(|&p| graph.point_world(p).ok())
+            .map(|y| 1.0 / anchor.act(&y).z)
             .filter(|q| q.is_finite() && *q > 0.0)
             .collect();
         let q0 = median(&mut inverse_depths).unwrap_or(1.0);
@@ -746,62 +805,79 @@ impl MonoExplorer {
         started
     }
 
-    /// Sliding-window BA over the last `window` keyframes, the first two fixed (§3.3.3).
+    /// Sliding-window BA over the last `window` keyframes, the first two fixed (§3.3.3), on
+    /// Euclidean points (points measured once in the window held fixed); the points are
+    /// written back anchored in their (possibly moved) anchor keyframes.
     fn window_ba(&mut self) -> Result<(), ExplorationError> {
-        let n = self.keyframes.len();
+        let graph = &self.map.graph;
+        let n = self.map.keyframes.len();
         let start = n.saturating_sub(self.config.window.max(3));
-        let window: Vec<usize> = (start..n).collect();
-        let mut problem = lsq::Problem::new();
-        let pose_vars: Vec<Var<Se3>> = window
-            .iter()
-            .map(|&k| problem.add_variable(self.keyframes[k].camera_from_world))
-            .collect();
-        for v in pose_vars.iter().take(2) {
-            problem.set_fixed(v.key(), true);
-        }
-        let mut count: HashMap<usize, usize> = HashMap::new();
+        let window: Vec<KeyframeId> = (start..n).map(KeyframeId::from_index).collect();
+        let poses: Vec<Se3> = window.iter().map(|&k| self.map.rigid_pose(k)).collect();
+        let mut count: BTreeMap<PointId, usize> = BTreeMap::new();
         for &k in &window {
-            for (p, _) in &self.keyframes[k].observations {
-                *count.entry(*p).or_default() += 1;
+            for &p in graph.keyframe(k).expect("in the map").observations().keys() {
+                *count.entry(p).or_default() += 1;
             }
         }
-        let mut point_ids: Vec<usize> = count.keys().copied().collect();
-        point_ids.sort_unstable();
-        let mut point_vars: HashMap<usize, Var<Vector3<f64>>> = HashMap::new();
-        for &p in &point_ids {
-            let v = problem.add_variable(self.points[p].point_world);
-            if count[&p] < 2 {
-                problem.set_fixed(v.key(), true);
+        let index: BTreeMap<PointId, usize> =
+            count.keys().enumerate().map(|(i, &p)| (p, i)).collect();
+        let points: Vec<Vector3<f64>> = count
+            .keys()
+            .map(|&p| graph.point_world(p))
+            .collect::<Result<_, _>>()
+            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+        let observations: Vec<Observation<2>> = window
+            .iter()
+            .enumerate()
+            .flat_map(|(wi, &k)| {
+                let obs = graph.keyframe(k).expect("in the map").observations();
+                let index = &index;
+                obs.iter().map(move |(p, z)| Observation {
+                    pose: wi,
+                    point: index[p],
+                    measurement: *z,
+                })
+            })
+            .collect();
+        let mut ba = BundleAdjustment::new(
+            &self.camera,
+            &poses,
+            &points,
+            &observations,
+            self.config.sigma,
+            Some(RobustKernel::Huber(self.config.huber)),
+            BaMode::Full,
+            &Gauge::FixPoses(vec![0, 1]),
+        )
+        .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+        for (v, &c) in ba.points.iter().zip(count.values()) {
+            if c < 2 {
+                ba.problem.set_fixed(v.key(), true);
             }
-            point_vars.insert(p, v);
         }
-        for (wi, &k) in window.iter().enumerate() {
-            for (p, z) in &self.keyframes[k].observations {
-                problem
-                    .add_factor(
-                        PointObservation {
-                            camera_from_world: pose_vars[wi],
-                            point_world: point_vars[p],
-                            measurement: *z,
-                            projector: self.camera,
-                        },
-                        Information::Isotropic(self.config.sigma),
-                        Some(RobustKernel::Huber(self.config.huber)),
-                    )
-                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            }
-        }
-        problem.set_eliminated::<Vector3<f64>>(true);
-        problem
+        ba.problem
             .optimise(&solver(self.config.ba_iterations))
             .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        for (wi, &k) in window.iter().enumerate() {
-            let t = *problem.value(pose_vars[wi]);
-            self.keyframes[k].camera_from_world = t;
-            self.filters.set_anchor_pose(self.keyframes[k].frame, t);
+        let (poses, points) = (ba.camera_from_world(), ba.points_world());
+        for (&k, t) in window.iter().zip(&poses) {
+            self.map
+                .graph
+                .set_pose(k, Sim3::from_se3(t))
+                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            self.filters
+                .set_anchor_pose(self.map.keyframes[k.index()].frame, *t);
         }
-        for (p, v) in point_vars {
-            self.points[p].point_world = *problem.value(v);
+        for (&p, y) in count.keys().zip(&points) {
+            let graph = &mut self.map.graph;
+            let anchor = graph.point(p).expect("in the map").anchor();
+            let x = graph.pose(anchor).expect("in the map").act(y);
+            // A point the window pushed behind its anchor keeps its previous position.
+            if let Some(psi) = point_to_inverse_depth(&x) {
+                graph
+                    .set_inverse_depth(p, psi)
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            }
         }
         Ok(())
     }
@@ -883,12 +959,13 @@ mod tests {
         let explorer = explore(&frames, 0.5);
         let poses = explorer.frame_poses();
         assert!(poses.len() > 100, "{} frames tracked", poses.len());
-        assert!(explorer.keyframes().len() >= 10);
+        assert!(explorer.map().keyframes.len() >= 10);
         // Map points beyond the bootstrap's: promoted by the filters.
         let promoted = explorer
+            .map()
+            .graph
             .points()
-            .iter()
-            .filter(|p| p.anchor_keyframe > 0)
+            .filter(|(_, p)| p.anchor() != KeyframeId(0))
             .count();
         assert!(promoted > 50, "{promoted} promoted features");
         // Camera centres relative to the first, best scale: small error.
@@ -919,7 +996,15 @@ mod tests {
         // Deterministic.
         let again = explore(&frames, 0.5);
         assert_eq!(again.frame_poses(), poses);
-        assert_eq!(again.points(), explorer.points());
+        let points = |e: &MonoExplorer| -> Vec<_> {
+            e.map()
+                .graph
+                .points()
+                .map(|(p, pt)| (p, pt.anchor(), *pt.inverse_depth()))
+                .collect()
+        };
+        assert_eq!(points(&again), points(&explorer));
+        explorer.map().graph.check_invariants().unwrap();
     }
 
     #[test]

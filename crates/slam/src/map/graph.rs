@@ -26,28 +26,25 @@
 //! weights and mutually inverse stored poses; every edge weight equals the number of points
 //! the two keyframes share; the reference keyframe exists.
 //!
-//! ## Concurrency (the live system's threads)
+//! ## Versions
 //!
-//! The tracking thread reads the graph (candidate points of `N1`, poses) while the optimiser
-//! writes it. [`SharedGraph`] wraps a graph in a `RwLock` that is only ever held for short,
-//! bounded sections: the double window optimiser ([`crate::dwo`]) *plans* under a read lock
-//! (copying the window's poses, points, observations and constraints into its own problem),
-//! *optimises with no lock held*, and *writes back* the optimised poses, points and
-//! re-computed constraints under a short write lock, skipping anything removed meanwhile.
-//! Tracking may therefore read, add keyframes and add observations during an optimisation;
-//! it never waits for one.
+//! Every mutation advances the graph's [`Version`] ([`SlamGraph::version`]); each keyframe
+//! records the version at which its pose last changed ([`Keyframe::pose_version`]) and each
+//! point the version at which its position (`ψ` or anchor) last changed
+//! ([`MapPoint::version`]). A writer that planned on the graph at version `v` (an optimiser
+//! running without the lock, [`crate::map::shared`]) finds what moved since: a pose with
+//! `pose_version > v` was changed by someone else (a loop correction) and must not be
+//! overwritten with a result computed from the old one.
 
 use lie::{LieGroup, Sim3};
 use nalgebra::{SVector, Vector3};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
-use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
-use crate::ba::{MIN_INVERSE_DEPTH, inverse_depth_to_point};
+use super::ids::{KeyframeId, PointId};
+use crate::factors::{MIN_INVERSE_DEPTH, inverse_depth_to_point, point_to_inverse_depth};
 
-/// Index of a keyframe vertex (never reused after removal).
-pub type KeyframeId = usize;
-/// Index of a map point (never reused after removal).
-pub type PointId = usize;
+/// A count of the mutations of a graph (see the module docs on versions).
+pub type Version = u64;
 
 /// An edge `E_ij` as stored at vertex `i` (thesis §6.2.2).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,13 +59,23 @@ pub struct Edge {
 /// A keyframe vertex `V_i`.
 #[derive(Clone, Debug)]
 pub struct Keyframe<const N: usize> {
-    /// The absolute pose `T_i` (scale 1 except after monocular loop closures).
-    pub camera_from_world: Sim3,
+    camera_from_world: Sim3,
+    pose_version: Version,
     observations: BTreeMap<PointId, SVector<f64, N>>,
     edges: BTreeMap<KeyframeId, Edge>,
 }
 
 impl<const N: usize> Keyframe<N> {
+    /// The absolute pose `T_i` (scale 1 except after monocular loop closures).
+    pub fn camera_from_world(&self) -> &Sim3 {
+        &self.camera_from_world
+    }
+
+    /// The graph version at which the pose last changed.
+    pub fn pose_version(&self) -> Version {
+        self.pose_version
+    }
+
     /// The measurements `z_ik` of the points visible from this keyframe.
     pub fn observations(&self) -> &BTreeMap<PointId, SVector<f64, N>> {
         &self.observations
@@ -83,14 +90,28 @@ impl<const N: usize> Keyframe<N> {
 /// A map point: an anchored inverse-depth feature (thesis §6.2.4).
 #[derive(Clone, Debug)]
 pub struct MapPoint {
-    /// The anchor keyframe `a(k)`.
-    pub anchor: KeyframeId,
-    /// `ψ = (x/z, y/z, 1/z)` of the point in the anchor frame.
-    pub inverse_depth: Vector3<f64>,
+    anchor: KeyframeId,
+    inverse_depth: Vector3<f64>,
+    version: Version,
     observers: BTreeSet<KeyframeId>,
 }
 
 impl MapPoint {
+    /// The anchor keyframe `a(k)`.
+    pub fn anchor(&self) -> KeyframeId {
+        self.anchor
+    }
+
+    /// `ψ = (x/z, y/z, 1/z)` of the point in the anchor frame.
+    pub fn inverse_depth(&self) -> &Vector3<f64> {
+        &self.inverse_depth
+    }
+
+    /// The graph version at which `ψ` or the anchor last changed.
+    pub fn version(&self) -> Version {
+        self.version
+    }
+
     /// The keyframes observing this point (the anchor among them).
     pub fn observers(&self) -> &BTreeSet<KeyframeId> {
         &self.observers
@@ -135,6 +156,7 @@ pub struct SlamGraph<const N: usize> {
     reference: Option<KeyframeId>,
     num_keyframes: usize,
     num_points: usize,
+    version: Version,
 }
 
 impl<const N: usize> SlamGraph<N> {
@@ -146,7 +168,19 @@ impl<const N: usize> SlamGraph<N> {
             reference: None,
             num_keyframes: 0,
             num_points: 0,
+            version: 0,
         }
+    }
+
+    /// The current version: the number of mutations so far.
+    pub fn version(&self) -> Version {
+        self.version
+    }
+
+    /// Advances the version (every mutation calls this first) and returns the new one.
+    fn bump(&mut self) -> Version {
+        self.version += 1;
+        self.version
     }
 
     /// Number of keyframes.
@@ -166,12 +200,12 @@ impl<const N: usize> SlamGraph<N> {
 
     /// The keyframe `id`, if present.
     pub fn keyframe(&self, id: KeyframeId) -> Option<&Keyframe<N>> {
-        self.keyframes.get(id).and_then(Option::as_ref)
+        self.keyframes.get(id.index()).and_then(Option::as_ref)
     }
 
     /// The point `id`, if present.
     pub fn point(&self, id: PointId) -> Option<&MapPoint> {
-        self.points.get(id).and_then(Option::as_ref)
+        self.points.get(id.index()).and_then(Option::as_ref)
     }
 
     /// All keyframes in id order.
@@ -179,7 +213,7 @@ impl<const N: usize> SlamGraph<N> {
         self.keyframes
             .iter()
             .enumerate()
-            .filter_map(|(i, k)| k.as_ref().map(|k| (i, k)))
+            .filter_map(|(i, k)| k.as_ref().map(|k| (KeyframeId::from_index(i), k)))
     }
 
     /// All points in id order.
@@ -187,15 +221,15 @@ impl<const N: usize> SlamGraph<N> {
         self.points
             .iter()
             .enumerate()
-            .filter_map(|(i, p)| p.as_ref().map(|p| (i, p)))
+            .filter_map(|(i, p)| p.as_ref().map(|p| (PointId::from_index(i), p)))
     }
 
-    /// The upper bound of keyframe ids (ids are below it).
+    /// The upper bound of keyframe id indices (every id's [`KeyframeId::index`] is below it).
     pub fn keyframe_id_bound(&self) -> usize {
         self.keyframes.len()
     }
 
-    /// The upper bound of point ids.
+    /// The upper bound of point id indices.
     pub fn point_id_bound(&self) -> usize {
         self.points.len()
     }
@@ -206,14 +240,14 @@ impl<const N: usize> SlamGraph<N> {
 
     fn kf_mut(&mut self, id: KeyframeId) -> Result<&mut Keyframe<N>, GraphError> {
         self.keyframes
-            .get_mut(id)
+            .get_mut(id.index())
             .and_then(Option::as_mut)
             .ok_or(GraphError::UnknownKeyframe(id))
     }
 
     fn pt_mut(&mut self, id: PointId) -> Result<&mut MapPoint, GraphError> {
         self.points
-            .get_mut(id)
+            .get_mut(id.index())
             .and_then(Option::as_mut)
             .ok_or(GraphError::UnknownPoint(id))
     }
@@ -225,7 +259,11 @@ impl<const N: usize> SlamGraph<N> {
 
     /// Sets the absolute pose of keyframe `id`.
     pub fn set_pose(&mut self, id: KeyframeId, camera_from_world: Sim3) -> Result<(), GraphError> {
-        self.kf_mut(id)?.camera_from_world = camera_from_world;
+        self.kf(id)?;
+        let v = self.bump();
+        let k = self.kf_mut(id)?;
+        k.camera_from_world = camera_from_world;
+        k.pose_version = v;
         Ok(())
     }
 
@@ -237,6 +275,7 @@ impl<const N: usize> SlamGraph<N> {
     /// Makes `id` the reference keyframe.
     pub fn set_reference(&mut self, id: KeyframeId) -> Result<(), GraphError> {
         self.kf(id)?;
+        self.bump();
         self.reference = Some(id);
         Ok(())
     }
@@ -244,9 +283,11 @@ impl<const N: usize> SlamGraph<N> {
     /// Adds a keyframe vertex with absolute pose `camera_from_world`; the first keyframe
     /// becomes the reference.
     pub fn add_keyframe(&mut self, camera_from_world: Sim3) -> KeyframeId {
-        let id = self.keyframes.len();
+        let pose_version = self.bump();
+        let id = KeyframeId::from_index(self.keyframes.len());
         self.keyframes.push(Some(Keyframe {
             camera_from_world,
+            pose_version,
             observations: BTreeMap::new(),
             edges: BTreeMap::new(),
         }));
@@ -268,10 +309,12 @@ impl<const N: usize> SlamGraph<N> {
         if !(inverse_depth.iter().all(|v| v.is_finite()) && inverse_depth.z > MIN_INVERSE_DEPTH) {
             return Err(GraphError::BadInverseDepth(inverse_depth.z));
         }
-        let id = self.points.len();
+        let version = self.bump();
+        let id = PointId::from_index(self.points.len());
         self.points.push(Some(MapPoint {
             anchor,
             inverse_depth,
+            version,
             observers: BTreeSet::new(),
         }));
         self.num_points += 1;
@@ -289,6 +332,8 @@ impl<const N: usize> SlamGraph<N> {
         measurement: SVector<f64, N>,
     ) -> Result<(), GraphError> {
         self.kf(keyframe)?;
+        self.point(point).ok_or(GraphError::UnknownPoint(point))?;
+        self.bump();
         let observers: Vec<KeyframeId> = {
             let p = self.pt_mut(point)?;
             if !p.observers.insert(keyframe) {
@@ -315,7 +360,10 @@ impl<const N: usize> SlamGraph<N> {
 
     fn bump_weight(&mut self, a: KeyframeId, b: KeyframeId, delta: isize) {
         for (x, y) in [(a, b), (b, a)] {
-            if let Some(e) = self.keyframes[x].as_mut().and_then(|k| k.edges.get_mut(&y)) {
+            if let Some(e) = self.keyframes[x.index()]
+                .as_mut()
+                .and_then(|k| k.edges.get_mut(&y))
+            {
                 e.weight = e.weight.saturating_add_signed(delta);
             }
         }
@@ -330,11 +378,18 @@ impl<const N: usize> SlamGraph<N> {
         point: PointId,
     ) -> Result<(), GraphError> {
         self.kf(keyframe)?;
+        if !self
+            .point(point)
+            .ok_or(GraphError::UnknownPoint(point))?
+            .observers
+            .contains(&keyframe)
+        {
+            return Ok(());
+        }
+        let version = self.bump();
         let (was_anchor, others) = {
             let p = self.pt_mut(point)?;
-            if !p.observers.remove(&keyframe) {
-                return Ok(());
-            }
+            p.observers.remove(&keyframe);
             (
                 p.anchor == keyframe,
                 p.observers.iter().copied().collect::<Vec<_>>(),
@@ -345,23 +400,24 @@ impl<const N: usize> SlamGraph<N> {
             self.bump_weight(keyframe, o, -1);
         }
         if others.is_empty() {
-            self.points[point] = None;
+            self.points[point.index()] = None;
             self.num_points -= 1;
             return Ok(());
         }
         if was_anchor {
             let new_anchor = others[0];
-            let y_old = inverse_depth_to_point(&self.points[point].as_ref().unwrap().inverse_depth);
+            let y_old = self.point_in_anchor(point)?;
             let t_old = self.pose(keyframe)?;
             let t_new = self.pose(new_anchor)?;
-            let y_new = t_new.compose(&t_old.inverse()).act(&y_old);
-            let p = self.pt_mut(point)?;
-            p.anchor = new_anchor;
-            if y_new.z > 0.0 && y_new.iter().all(|v| v.is_finite()) {
-                p.inverse_depth = Vector3::new(y_new.x / y_new.z, y_new.y / y_new.z, 1.0 / y_new.z);
-            } else {
+            match point_to_inverse_depth(&t_new.compose(&t_old.inverse()).act(&y_old)) {
+                Some(psi) => {
+                    let p = self.pt_mut(point)?;
+                    p.anchor = new_anchor;
+                    p.inverse_depth = psi;
+                    p.version = version;
+                }
                 // Behind the new anchor: the point cannot be represented there; drop it.
-                self.remove_point(point)?;
+                None => self.remove_point(point)?,
             }
         }
         Ok(())
@@ -376,13 +432,14 @@ impl<const N: usize> SlamGraph<N> {
             .iter()
             .copied()
             .collect();
+        self.bump();
         for (n, &a) in observers.iter().enumerate() {
             self.kf_mut(a)?.observations.remove(&point);
             for &b in &observers[n + 1..] {
                 self.bump_weight(a, b, -1);
             }
         }
-        self.points[point] = None;
+        self.points[point.index()] = None;
         self.num_points -= 1;
         Ok(())
     }
@@ -396,10 +453,11 @@ impl<const N: usize> SlamGraph<N> {
         }
         let neighbours: Vec<KeyframeId> = self.kf(id)?.edges.keys().copied().collect();
         let strongest = self.neighbours_by_weight(id).first().map(|&(n, _)| n);
+        self.bump();
         for n in neighbours {
             self.kf_mut(n)?.edges.remove(&id);
         }
-        self.keyframes[id] = None;
+        self.keyframes[id.index()] = None;
         self.num_keyframes -= 1;
         if self.reference == Some(id) {
             self.reference = strongest.or_else(|| self.keyframes().map(|(k, _)| k).last());
@@ -439,6 +497,7 @@ impl<const N: usize> SlamGraph<N> {
         }
         self.kf(a)?;
         self.kf(b)?;
+        self.bump();
         let weight = self.shared_points(a, b);
         self.kf_mut(a)?.edges.insert(
             b,
@@ -459,6 +518,9 @@ impl<const N: usize> SlamGraph<N> {
 
     /// Removes the edge `E_ab` if present.
     pub fn remove_edge(&mut self, a: KeyframeId, b: KeyframeId) -> Result<(), GraphError> {
+        self.kf(a)?;
+        self.kf(b)?;
+        self.bump();
         self.kf_mut(a)?.edges.remove(&b);
         self.kf_mut(b)?.edges.remove(&a);
         Ok(())
@@ -470,26 +532,29 @@ impl<const N: usize> SlamGraph<N> {
     }
 
     /// Marks `E_ab` marginalised with relative pose `T_ba` (`Some`) or not marginalised
-    /// (`None`). No-op if the edge does not exist.
-    pub fn set_edge_relative(&mut self, a: KeyframeId, b: KeyframeId, relative_ba: Option<Sim3>) {
-        if let Some(e) = self
-            .keyframes
-            .get_mut(a)
-            .and_then(Option::as_mut)
-            .and_then(|k| k.edges.get_mut(&b))
-        {
-            e.relative = relative_ba;
-        } else {
-            return;
+    /// (`None`); `false` (and nothing changes) if the edge does not exist.
+    pub fn set_edge_relative(
+        &mut self,
+        a: KeyframeId,
+        b: KeyframeId,
+        relative_ba: Option<Sim3>,
+    ) -> bool {
+        if self.edge(a, b).is_none() {
+            return false;
         }
-        if let Some(e) = self
-            .keyframes
-            .get_mut(b)
-            .and_then(Option::as_mut)
-            .and_then(|k| k.edges.get_mut(&a))
-        {
-            e.relative = relative_ba.map(|t| t.inverse());
+        self.bump();
+        for (x, y, t) in [
+            (a, b, relative_ba),
+            (b, a, relative_ba.map(|t| t.inverse())),
+        ] {
+            if let Some(e) = self.keyframes[x.index()]
+                .as_mut()
+                .and_then(|k| k.edges.get_mut(&y))
+            {
+                e.relative = t;
+            }
         }
+        true
     }
 
     /// The relative pose `T_ba` (frame `a` into frame `b`): the stored constraint of a
@@ -600,8 +665,31 @@ impl<const N: usize> SlamGraph<N> {
         if !(inverse_depth.iter().all(|v| v.is_finite()) && inverse_depth.z > MIN_INVERSE_DEPTH) {
             return Err(GraphError::BadInverseDepth(inverse_depth.z));
         }
-        self.pt_mut(point)?.inverse_depth = inverse_depth;
+        self.point(point).ok_or(GraphError::UnknownPoint(point))?;
+        let version = self.bump();
+        let p = self.pt_mut(point)?;
+        p.inverse_depth = inverse_depth;
+        p.version = version;
         Ok(())
+    }
+
+    /// The poses and points of the graph, for comparing two states of it (tests, and writers
+    /// that check what changed): `(keyframe, pose)` and `(point, anchor, ψ)` in id order.
+    #[allow(clippy::type_complexity)]
+    pub fn snapshot_state(
+        &self,
+    ) -> (
+        Vec<(KeyframeId, Sim3)>,
+        Vec<(PointId, KeyframeId, Vector3<f64>)>,
+    ) {
+        (
+            self.keyframes()
+                .map(|(k, kf)| (k, kf.camera_from_world))
+                .collect(),
+            self.points()
+                .map(|(p, pt)| (p, pt.anchor, pt.inverse_depth))
+                .collect(),
+        )
     }
 
     /// Checks every invariant of the module docs; the first violation is the error.
@@ -689,49 +777,16 @@ impl<const N: usize> SlamGraph<N> {
     }
 }
 
-/// A SLAM graph shared between the tracking thread and the optimiser (see the module docs):
-/// readers and writers hold the lock only for short sections, never during an optimisation.
-#[derive(Debug, Default)]
-pub struct SharedGraph<const N: usize> {
-    graph: RwLock<SlamGraph<N>>,
-}
-
-impl<const N: usize> SharedGraph<N> {
-    /// Wraps a graph.
-    pub fn new(graph: SlamGraph<N>) -> Self {
-        SharedGraph {
-            graph: RwLock::new(graph),
-        }
-    }
-
-    /// A read guard (hold it briefly). A poisoned lock (a panicking writer) is recovered: the
-    /// graph's mutations keep its invariants at every step that can panic.
-    pub fn read(&self) -> RwLockReadGuard<'_, SlamGraph<N>> {
-        self.graph.read().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// A write guard (hold it briefly).
-    pub fn write(&self) -> RwLockWriteGuard<'_, SlamGraph<N>> {
-        self.graph.write().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// A copy of the whole graph (for a consistent view without holding the lock).
-    pub fn snapshot(&self) -> SlamGraph<N> {
-        self.read().clone()
-    }
-
-    /// The wrapped graph.
-    pub fn into_inner(self) -> SlamGraph<N> {
-        self.graph.into_inner().unwrap_or_else(|e| e.into_inner())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::Vector2;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    fn k(i: usize) -> KeyframeId {
+        KeyframeId::from_index(i)
+    }
 
     fn random_graph(seed: u64, keyframes: usize, points: usize) -> SlamGraph<2> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -750,16 +805,17 @@ mod tests {
                 rng.random_range(-0.5..0.5),
                 rng.random_range(0.2..1.0),
             );
-            let p = g.add_point(anchor, psi, Vector2::new(1.0, 2.0)).unwrap();
+            let p = g.add_point(k(anchor), psi, Vector2::new(1.0, 2.0)).unwrap();
             for _ in 0..rng.random_range(0..5) {
-                let k = (anchor + rng.random_range(0..4)).min(keyframes - 1);
-                g.add_observation(k, p, Vector2::new(3.0, 4.0)).unwrap();
+                let o = (anchor + rng.random_range(0..4)).min(keyframes - 1);
+                g.add_observation(k(o), p, Vector2::new(3.0, 4.0)).unwrap();
             }
         }
         for a in 0..keyframes {
             for b in a + 1..keyframes.min(a + 4) {
+                let (a, b) = (k(a), k(b));
                 if g.shared_points(a, b) > 0 {
-                    let rel = if (a + b) % 2 == 0 {
+                    let rel = if (a.index() + b.index()) % 2 == 0 {
                         Some(g.pose(b).unwrap().compose(&g.pose(a).unwrap().inverse()))
                     } else {
                         None
@@ -779,7 +835,7 @@ mod tests {
             assert!(g.num_edges() > 5);
             // Observations added after the edges keep the weights equal to shared counts.
             let p = g.points().map(|(p, _)| p).nth(3).unwrap();
-            g.add_observation(5, p, Vector2::zeros()).unwrap();
+            g.add_observation(k(5), p, Vector2::zeros()).unwrap();
             g.check_invariants().unwrap();
             let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
             for _ in 0..40 {
@@ -800,14 +856,17 @@ mod tests {
             g.remove_keyframe(r).unwrap();
             g.check_invariants().unwrap();
             assert_ne!(g.reference(), Some(r));
-            g.remove_keyframe(7).unwrap();
+            g.remove_keyframe(k(7)).unwrap();
             g.check_invariants().unwrap();
             assert_eq!(g.num_keyframes(), 10);
-            assert!(g.points().all(|(_, p)| p.anchor != 7 && p.anchor != r));
-            assert!(matches!(
-                g.remove_keyframe(7),
-                Err(GraphError::UnknownKeyframe(7))
-            ));
+            assert!(
+                g.points()
+                    .all(|(_, p)| p.anchor() != k(7) && p.anchor() != r)
+            );
+            assert_eq!(
+                g.remove_keyframe(k(7)),
+                Err(GraphError::UnknownKeyframe(k(7)))
+            );
         }
     }
 
@@ -829,7 +888,7 @@ mod tests {
         g.add_observation(b, p, Vector2::zeros()).unwrap();
         let before = g.point_world(p).unwrap();
         g.remove_observation(a, p).unwrap();
-        assert_eq!(g.point(p).unwrap().anchor, b);
+        assert_eq!(g.point(p).unwrap().anchor(), b);
         assert!((g.point_world(p).unwrap() - before).norm() < 1e-12);
         g.remove_observation(b, p).unwrap();
         assert!(g.point(p).is_none(), "a point without observers is removed");
@@ -846,9 +905,9 @@ mod tests {
         let mut share = |a: usize, b: usize, n: usize| {
             for _ in 0..n {
                 let p = g
-                    .add_point(a, Vector3::new(0.0, 0.0, 1.0), Vector2::zeros())
+                    .add_point(k(a), Vector3::new(0.0, 0.0, 1.0), Vector2::zeros())
                     .unwrap();
-                g.add_observation(b, p, Vector2::zeros()).unwrap();
+                g.add_observation(k(b), p, Vector2::zeros()).unwrap();
             }
         };
         share(0, 1, 1);
@@ -856,17 +915,18 @@ mod tests {
         share(2, 3, 2);
         share(1, 4, 1);
         for (a, b) in [(0, 1), (0, 2), (2, 3), (1, 4)] {
-            g.add_edge(a, b, None).unwrap();
+            g.add_edge(k(a), k(b), None).unwrap();
         }
         g.check_invariants().unwrap();
-        assert_eq!(g.edge(0, 2).unwrap().weight, 3);
-        let t = g.weighted_bfs(0, 10);
-        assert_eq!(t.order, vec![0, 2, 1, 3, 4]);
-        assert_eq!(t.parent[&3], Some(2));
-        assert_eq!(t.parent[&4], Some(1));
-        assert_eq!(g.weighted_bfs(0, 2).order, vec![0, 2]);
-        assert_eq!(g.n1(0), vec![0, 2, 1]);
-        assert_eq!(g.n2(0, 4), vec![0, 2, 1, 3]);
+        assert_eq!(g.edge(k(0), k(2)).unwrap().weight, 3);
+        let ks = |v: &[usize]| v.iter().map(|&i| k(i)).collect::<Vec<_>>();
+        let t = g.weighted_bfs(k(0), 10);
+        assert_eq!(t.order, ks(&[0, 2, 1, 3, 4]));
+        assert_eq!(t.parent[&k(3)], Some(k(2)));
+        assert_eq!(t.parent[&k(4)], Some(k(1)));
+        assert_eq!(g.weighted_bfs(k(0), 2).order, ks(&[0, 2]));
+        assert_eq!(g.n1(k(0)), ks(&[0, 2, 1]));
+        assert_eq!(g.n2(k(0), 4), ks(&[0, 2, 1, 3]));
     }
 
     #[test]
@@ -877,17 +937,50 @@ mod tests {
             g.add_point(a, Vector3::new(0.0, 0.0, -1.0), Vector2::zeros()),
             Err(GraphError::BadInverseDepth(_))
         ));
-        assert!(matches!(
-            g.add_point(9, Vector3::new(0.0, 0.0, 1.0), Vector2::zeros()),
-            Err(GraphError::UnknownKeyframe(9))
-        ));
+        assert_eq!(
+            g.add_point(k(9), Vector3::new(0.0, 0.0, 1.0), Vector2::zeros()),
+            Err(GraphError::UnknownKeyframe(k(9)))
+        );
         assert!(matches!(
             g.add_edge(a, a, None),
             Err(GraphError::SelfEdge(_))
         ));
-        assert!(matches!(
-            g.add_observation(a, 4, Vector2::zeros()),
-            Err(GraphError::UnknownPoint(4))
-        ));
+        assert_eq!(
+            g.add_observation(a, PointId(4), Vector2::zeros()),
+            Err(GraphError::UnknownPoint(PointId(4)))
+        );
+    }
+
+    #[test]
+    fn versions_record_what_changed_when() {
+        let mut g = SlamGraph::<2>::new();
+        let a = g.add_keyframe(Sim3::identity());
+        let b = g.add_keyframe(Sim3::identity());
+        let p = g
+            .add_point(a, Vector3::new(0.1, 0.0, 0.5), Vector2::zeros())
+            .unwrap();
+        let planned = g.version();
+        assert!(g.keyframe(a).unwrap().pose_version() <= planned);
+        // Adding observations and edges moves the graph, not the poses or the point.
+        g.add_observation(b, p, Vector2::zeros()).unwrap();
+        g.add_edge(a, b, None).unwrap();
+        assert!(g.version() > planned);
+        assert!(g.keyframe(a).unwrap().pose_version() <= planned);
+        assert!(g.point(p).unwrap().version() <= planned);
+        // A pose or point that is set is newer than the plan.
+        g.set_pose(b, Sim3::identity()).unwrap();
+        assert!(g.keyframe(b).unwrap().pose_version() > planned);
+        g.set_inverse_depth(p, Vector3::new(0.1, 0.0, 0.4)).unwrap();
+        assert!(g.point(p).unwrap().version() > planned);
+        // Re-anchoring changes what ψ means: the point is newer too.
+        let before = g.point(p).unwrap().version();
+        g.remove_observation(a, p).unwrap();
+        assert_eq!(g.point(p).unwrap().anchor(), b);
+        assert!(g.point(p).unwrap().version() > before);
+        // Refused mutations do not count.
+        let v = g.version();
+        assert!(g.set_pose(k(9), Sim3::identity()).is_err());
+        assert!(!g.set_edge_relative(a, k(9), None));
+        assert_eq!(g.version(), v);
     }
 }

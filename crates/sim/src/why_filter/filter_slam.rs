@@ -1,5 +1,5 @@
 //! Filter-SLAM (thesis Alg. 5, §4.5.2): the Gauss-Newton information filter of
-//! [`crate::filter`] run over keyframes with feature management as in BA-SLAM.
+//! [`super::filter`] run over keyframes with feature management as in BA-SLAM.
 //!
 //! Per keyframe `i`: if features left the field of view, the previous pose `T_{i−1}` becomes
 //! an anchor, the lost points are marginalised and new ones anchored at `T_{i−1}` (stereo:
@@ -8,11 +8,11 @@
 //! predicted by motion-only BA (eq. 4.15) or from the Gaussian map prior (thesis Alg. 6), then
 //! the joint update (eq. 4.18) and the information update (Alg. 4) follow.
 
-use crate::clock::CpuStopwatch;
-use crate::features::{FrameMeasurements, ImageArea, find, select_replacements, split_lost};
-use crate::filter::{Anchor, FilterError, GaussNewtonFilter, InverseDepthCamera, LmSettings};
+use super::features::{FrameMeasurements, ImageArea, find, select_replacements, split_lost};
+use super::filter::{Anchor, FilterError, GaussNewtonFilter, InverseDepthCamera, LmSettings};
 use lie::Se3;
 use nalgebra::SVector;
+use slam::clock::CpuStopwatch;
 use std::collections::HashSet;
 use std::time::Duration;
 
@@ -42,7 +42,7 @@ pub struct FilterSlamOptions {
     pub seed: u64,
 }
 
-/// Time spent in the parts of filter-SLAM (CPU time of the calling thread, [`crate::clock`]).
+/// Time spent in the parts of filter-SLAM (CPU time of the calling thread, [`slam::clock`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FilterSlamCost {
     /// Marginalisation and feature replacement.
@@ -114,7 +114,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
     }
 
     fn median_inverse_depth(&self, t: &Se3) -> f64 {
-        crate::features::median_inverse_depth(
+        super::features::median_inverse_depth(
             t,
             self.tracked
                 .iter()
@@ -132,7 +132,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
     ) -> Result<Se3, FilterError> {
         let obs = self.prepare(previous, frame)?;
         let start = CpuStopwatch::start();
-        let predicted = self.predict(&obs, self.options.motion);
+        let predicted = self.predict(&obs, self.options.motion)?;
         self.cost.motion += start.elapsed();
         self.update(&obs, predicted)
     }
@@ -208,19 +208,24 @@ impl<C: InverseDepthCamera<N>, const N: usize> FilterSlam<C, N> {
 
     /// Predicts the new pose from the map after [`Self::prepare`] (thesis §4.6.3), starting
     /// at the previous estimate; changes nothing, so several estimates can be compared on the
-    /// same state (thesis Fig. 4.10). Falls back to the previous pose if the map prior is
-    /// singular.
-    pub fn predict(&self, obs: &[(usize, SVector<f64, N>)], estimate: MotionEstimate) -> Se3 {
+    /// same state (thesis Fig. 4.10). The map-prior estimate falls back to the previous pose
+    /// if the map prior is singular (a fresh monocular map can be); a failed motion-only BA is
+    /// an error.
+    pub fn predict(
+        &self,
+        obs: &[(usize, SVector<f64, N>)],
+        estimate: MotionEstimate,
+    ) -> Result<Se3, FilterError> {
         let t_prev = self.pose;
         match estimate {
             MotionEstimate::MotionOnlyBa => {
                 self.filter
                     .motion_only_ba(obs, &t_prev, self.options.iterations)
             }
-            MotionEstimate::MapPrior { exact } => self
+            MotionEstimate::MapPrior { exact } => Ok(self
                 .filter
                 .motion_from_map_prior(obs, &t_prev, self.options.iterations, exact)
-                .unwrap_or(t_prev),
+                .unwrap_or(t_prev)),
         }
     }
 

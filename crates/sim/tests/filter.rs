@@ -12,10 +12,10 @@ use lsq::{Information, Problem, SolverOptions, Var};
 use nalgebra::{DMatrix, SVector, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use slam::ba::{AnchorObservation, AnchoredObservation, Projector};
-use slam::bootstrap::{BootstrapOptions, bootstrap};
-use slam::features::ImageArea;
-use slam::filter::{Anchor, GaussNewtonFilter, LmSettings};
+use sim::why_filter::bootstrap::{BootstrapOptions, bootstrap};
+use sim::why_filter::features::ImageArea;
+use sim::why_filter::filter::{Anchor, GaussNewtonFilter, LmSettings};
+use slam::factors::{AnchorObservation, AnchoredObservation, Projector};
 
 const SIGMA: f64 = 0.5;
 
@@ -280,7 +280,7 @@ fn pose_from_the_map_prior_recovers_the_pose() {
         let d = t.compose(&truth[2].inverse()).log().norm();
         assert!(d < 1e-6, "exact = {exact}: off by {d}");
     }
-    let t = filter.motion_only_ba(&obs(2), &start, 10);
+    let t = filter.motion_only_ba(&obs(2), &start, 10).unwrap();
     assert!(t.compose(&truth[2].inverse()).log().norm() < 1e-6);
     // A map without a pose to marginalise first is refused.
     filter.begin_frame(2, start).unwrap();

@@ -25,56 +25,13 @@
 //!
 //! The cost is cubic in the number of points: every step factorises the dense `Λ`.
 
-use crate::ba::{Observation, Projector, inverse_depth_to_point, linearize_anchored};
-use crate::ba_slam::motion_only;
-use geom::{PinholeCamera, StereoCamera};
+use super::ba_slam::motion_only;
 use lie::{LieGroup, Se3};
 use lsq::dense::{SpdFactor, cholesky_solve_in_place, marginalise, spd_inverse};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector3, Vector6};
+pub use slam::factors::InverseDepthCamera;
+use slam::factors::{inverse_depth_to_point, linearize_anchored};
 use std::collections::HashMap;
-
-/// A camera whose measurement in a point's anchor frame gives the point's inverse-depth
-/// coordinates: `ψ = ((u − p_u)/f, (v − p_v)/f, q)` with `q` from the stereo disparity,
-/// `(u_l − u_r)/(f·b)` (thesis eq. 4.23), or, for a monocular camera, unknown (eq. 4.26).
-pub trait InverseDepthCamera<const N: usize>: Projector<N> + Clone {
-    /// Whether one measurement determines depth (stereo, RGB-D) or not (monocular).
-    const MEASURES_DEPTH: bool;
-
-    /// `ψ` of a point measured `z` in its anchor frame; monocular cameras use
-    /// `default_inverse_depth` for `q`. `None` if `z` gives no valid point (e.g. a
-    /// non-positive disparity).
-    fn inverse_depth_from(
-        &self,
-        z: &SVector<f64, N>,
-        default_inverse_depth: f64,
-    ) -> Option<Vector3<f64>>;
-}
-
-impl InverseDepthCamera<2> for PinholeCamera {
-    const MEASURES_DEPTH: bool = false;
-
-    fn inverse_depth_from(
-        &self,
-        z: &SVector<f64, 2>,
-        default_inverse_depth: f64,
-    ) -> Option<Vector3<f64>> {
-        let m = self.normalised_from_pixel(z);
-        Some(Vector3::new(m.x, m.y, default_inverse_depth))
-    }
-}
-
-impl InverseDepthCamera<3> for StereoCamera {
-    const MEASURES_DEPTH: bool = true;
-
-    fn inverse_depth_from(
-        &self,
-        z: &SVector<f64, 3>,
-        _default_inverse_depth: f64,
-    ) -> Option<Vector3<f64>> {
-        let x = self.unproject(z).ok()?;
-        Some(Vector3::new(x.x / x.z, x.y / x.z, 1.0 / x.z))
-    }
-}
 
 /// The anchor of a point: the filter's fixed origin, or an anchor pose in the state (named by
 /// its frame number).
@@ -104,6 +61,9 @@ pub enum FilterError {
     /// An information block to be marginalised or inverted is not positive definite.
     #[error("information matrix not positive definite ({0})")]
     NotPositiveDefinite(&'static str),
+    /// Motion-only BA of a new pose failed.
+    #[error(transparent)]
+    Tracking(#[from] slam::tracking::TrackingError),
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -271,7 +231,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
     /// infinity.
     pub fn point_world(&self, id: usize) -> Option<Vector3<f64>> {
         let p = &self.points[*self.index.get(&id)?];
-        (p.psi.z > crate::ba::MIN_INVERSE_DEPTH).then(|| {
+        (p.psi.z > slam::factors::MIN_INVERSE_DEPTH).then(|| {
             self.anchor_pose(p.anchor)
                 .expect("anchors of points are in the state")
                 .inverse()
@@ -340,7 +300,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
             let psi = self
                 .camera
                 .inverse_depth_from(z, default_inverse_depth)
-                .filter(|p| p.iter().all(|x| x.is_finite()) && p.z > crate::ba::MIN_INVERSE_DEPTH)
+                .filter(|p| {
+                    p.iter().all(|x| x.is_finite()) && p.z > slam::factors::MIN_INVERSE_DEPTH
+                })
                 .ok_or(FilterError::InvalidMeasurement(*id))?;
             let lin = linearize_anchored(&self.camera, &Se3::identity(), &Se3::identity(), &psi)
                 .ok_or(FilterError::InvalidMeasurement(*id))?;
@@ -829,31 +791,28 @@ impl<C: InverseDepthCamera<N>, const N: usize> GaussNewtonFilter<C, N> {
             .collect()
     }
 
-    /// Motion-only BA of a new pose against the map's mean (eq. 4.15): points with depth
-    /// information as fixed world points, `iterations` LM iterations from `initial`.
+    /// Motion-only BA of a new pose against the map's mean (eq. 4.15): the observed points
+    /// with depth information as fixed world points, `iterations` LM iterations from
+    /// `initial` ([`motion_only`]: `initial` itself when no such point is observed).
     pub fn motion_only_ba(
         &self,
         observations: &[(usize, SVector<f64, N>)],
         initial: &Se3,
         iterations: usize,
-    ) -> Se3 {
-        let obs = self.map_observations(observations);
-        let points: Vec<Vector3<f64>> = obs
+    ) -> Result<Se3, FilterError> {
+        let (points, measurements): (Vec<Vector3<f64>>, Vec<SVector<f64, N>>) = self
+            .map_observations(observations)
             .iter()
-            .filter_map(|(id, _)| self.point_world(*id))
-            .collect();
-        if points.len() != obs.len() || obs.is_empty() {
-            return *initial;
-        }
-        let observations = Observation::of_one_pose(obs.iter().map(|(_, z)| *z));
-        motion_only(
+            .filter_map(|(id, z)| self.point_world(*id).map(|y| (y, *z)))
+            .unzip();
+        Ok(motion_only(
             &self.camera,
             initial,
             &points,
-            &observations,
+            &measurements,
             self.sigma,
             iterations,
-        )
+        )?)
     }
 
     /// Pose estimation given the Gaussian map prior `⟨Φ, Σ_Φ⟩` (thesis Alg. 6, Eade 2008):

@@ -1,7 +1,7 @@
 //! Keyframe BA-SLAM (thesis Alg. 3, §4.5.1) on measured frames with known data association.
 //!
 //! Per keyframe `i`: features that left the field of view are replaced by new ones where the
-//! feature density is low (quadtree, [`crate::features`]); the pose `T_i` is tracked by
+//! feature density is low (quadtree, [`super::features`]); the pose `T_i` is tracked by
 //! motion-only BA from `T_{i−1}` (eq. 4.15); the points are refined by structure-only BA
 //! (eq. 4.16) and everything by full BA over `T_{1:i}` and all points with `T_0` fixed
 //! (eq. 4.14; for a monocular camera the remaining scale gauge is left to the
@@ -9,44 +9,40 @@
 //! keyframe `i−1`; new monocular points are triangulated between keyframes `i−1` and `i` by a
 //! pluggable [`PointInitialiser`] (the thesis's independent inverse-depth filters, §3.4.4).
 
-use crate::ba::{
-    AnchorObservation, AnchoredObservation, BaMode, BundleAdjustment, Gauge, Observation,
-    Projector, inverse_depth_to_point,
-};
-use crate::clock::CpuStopwatch;
-use crate::features::{FrameMeasurements, ImageArea, find, select_replacements, split_lost};
-use crate::filter::InverseDepthCamera;
+use super::features::{FrameMeasurements, ImageArea, find, select_replacements, split_lost};
+use super::filter::InverseDepthCamera;
 use lie::{LieGroup, Se3};
 use nalgebra::{SVector, Vector2, Vector3};
+use slam::ba::{BaMode, BundleAdjustment, Gauge, Observation};
+use slam::clock::CpuStopwatch;
+use slam::factors::{AnchorObservation, AnchoredObservation, Projector, inverse_depth_to_point};
+use slam::tracking::{MotionOnlyOptions, TrackingError, motion_only_ba};
 use std::collections::{HashMap, HashSet};
 use std::time::Duration;
 
-/// Motion-only BA of one pose against fixed world points (eq. 4.15), `iterations` LM
-/// iterations from `initial`; `initial` back if the problem cannot be solved.
+/// Motion-only BA of one pose against fixed world points (eq. 4.15) as the study runs it: least
+/// squares (no robust kernel: the study's data association is perfect), `iterations` LM
+/// iterations from `initial`. A keyframe that measures no map point keeps `initial` (the
+/// prediction is all there is); any other failure is an error.
 pub fn motion_only<P: Projector<N> + Clone, const N: usize>(
     projector: &P,
     initial: &Se3,
     points_world: &[Vector3<f64>],
-    observations: &[Observation<N>],
+    measurements: &[SVector<f64, N>],
     sigma: f64,
     iterations: usize,
-) -> Se3 {
-    let Ok(mut ba) = BundleAdjustment::new(
-        projector,
-        &[*initial],
-        points_world,
-        observations,
-        sigma,
-        None,
-        BaMode::MotionOnly,
-        &Gauge::Damping,
-    ) else {
-        return *initial;
-    };
-    match ba.problem.optimise(&solver_options(iterations)) {
-        Ok(_) => ba.camera_from_world()[0],
-        Err(_) => *initial,
+) -> Result<Se3, TrackingError> {
+    if measurements.is_empty() {
+        return Ok(*initial);
     }
+    let options = MotionOnlyOptions {
+        sigma,
+        kernel: None,
+        iterations,
+        min_matches: 1,
+    };
+    motion_only_ba(projector, initial, points_world, measurements, &options)
+        .map(|fit| fit.camera_from_world)
 }
 
 /// `lsq`'s default Levenberg-Marquardt limited to `iterations` linear solves.
@@ -135,7 +131,7 @@ impl<C: InverseDepthCamera<2>> PointInitialiser<C> for TwoViewInverseDepth {
             return None;
         }
         let psi = *problem.value(psi);
-        (psi.z > crate::ba::MIN_INVERSE_DEPTH).then(|| {
+        (psi.z > slam::factors::MIN_INVERSE_DEPTH).then(|| {
             anchor_from_world
                 .inverse()
                 .act(&inverse_depth_to_point(&psi))
@@ -155,7 +151,7 @@ pub struct BaSlamOptions {
     pub seed: u64,
 }
 
-/// Time spent in the parts of BA-SLAM (CPU time of the calling thread, [`crate::clock`]).
+/// Time spent in the parts of BA-SLAM (CPU time of the calling thread, [`slam::clock`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BaSlamCost {
     /// Feature replacement and initialisation.
@@ -263,7 +259,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
 
     /// The median inverse depth of the tracked map points seen from `t`.
     fn median_inverse_depth(&self, t: &Se3) -> f64 {
-        crate::features::median_inverse_depth(
+        super::features::median_inverse_depth(
             t,
             self.tracked
                 .iter()
@@ -280,7 +276,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         previous: &FrameMeasurements<N>,
         frame: &FrameMeasurements<N>,
         initialiser: Option<&dyn PointInitialiser<C>>,
-    ) -> Se3 {
+    ) -> Result<Se3, TrackingError> {
         let i = self.keyframes.len();
         let t_prev = self.current();
         // 1. Replace features that left the field of view.
@@ -320,14 +316,10 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         // 2. Motion-only BA from T_{i−1}.
         let start = CpuStopwatch::start();
         let mut pts = Vec::new();
-        let mut obs = Vec::new();
+        let mut measurements = Vec::new();
         for id in &self.tracked {
             if let (Some(&k), Some(z)) = (self.point_of.get(id), find(frame, *id)) {
-                obs.push(Observation {
-                    pose: 0,
-                    point: pts.len(),
-                    measurement: z,
-                });
+                measurements.push(z);
                 pts.push(self.points[k]);
             }
         }
@@ -335,10 +327,10 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
             &self.camera,
             &t_prev,
             &pts,
-            &obs,
+            &measurements,
             self.sigma,
             self.options.iterations,
-        );
+        )?;
         self.keyframes.push(t_i);
         for id in self.tracked.clone() {
             if self.point_of.contains_key(&id)
@@ -379,7 +371,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> BaSlam<C, N> {
         let start = CpuStopwatch::start();
         self.adjust(BaMode::Full);
         self.cost.full += start.elapsed();
-        self.current()
+        Ok(self.current())
     }
 
     fn adjust(&mut self, mode: BaMode) {

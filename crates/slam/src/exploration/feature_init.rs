@@ -27,23 +27,13 @@
 //! fraction of its inverse depth, `σ_q ≤ κ·q` — i.e. the depth is known to about `κ` relative
 //! accuracy — after a minimum number of measurements.
 
-use crate::ba::{MIN_INVERSE_DEPTH, Projector, d_inverse_depth_to_point, inverse_depth_to_point};
+use crate::factors::{
+    MIN_INVERSE_DEPTH, Projector, d_inverse_depth_to_point, inverse_depth_to_point,
+};
 use lie::{LieGroup, Se3};
 use lsq::{Factor, Jacobians, Values, Var, VarKey};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use std::collections::BTreeMap;
-
-/// `Π⁻¹(x) = (x₁/x₃, x₂/x₃, 1/x₃)`: the anchored inverse-depth point of a point `x` given in its
-/// anchor frame (the inverse of [`inverse_depth_to_point`]); `None` if `x₃ ≤ 0` or not finite.
-pub fn point_to_inverse_depth(x_anchor: &Vector3<f64>) -> Option<Vector3<f64>> {
-    (x_anchor.iter().all(|v| v.is_finite()) && x_anchor.z > 0.0).then(|| {
-        Vector3::new(
-            x_anchor.x / x_anchor.z,
-            x_anchor.y / x_anchor.z,
-            1.0 / x_anchor.z,
-        )
-    })
-}
 
 /// The predicted measurement of an anchored inverse-depth point and its Jacobian with respect
 /// to `ψ`, with the observer-from-anchor transformation `T_la = T_lw·T_aw⁻¹` known (thesis
@@ -122,7 +112,7 @@ pub struct FeatureInitConfig {
     pub min_observations: usize,
     /// A measurement whose whitened residual `rᵀΛ_z r` after the update exceeds this is
     /// rejected as an outlier and leaves the filter unchanged. `None`: the 99.9 % quantile of
-    /// χ² with `N` degrees of freedom ([`chi2_999`]).
+    /// χ² with `N` degrees of freedom ([`lsq::chi2_quantile`]).
     pub outlier_chi2: Option<f64>,
     /// Levenberg-Marquardt iterations per update at most.
     pub max_iterations: usize,
@@ -138,20 +128,6 @@ impl Default for FeatureInitConfig {
             min_observations: 3,
             outlier_chi2: None,
             max_iterations: 10,
-        }
-    }
-}
-
-/// The 99.9 % quantile of the χ² distribution with `dof` degrees of freedom (1 to 6; beyond,
-/// the Wilson–Hilferty approximation).
-pub fn chi2_999(dof: usize) -> f64 {
-    const TABLE: [f64; 6] = [10.828, 13.816, 16.266, 18.467, 20.515, 22.458];
-    match dof {
-        1..=6 => TABLE[dof - 1],
-        _ => {
-            let k = dof.max(1) as f64;
-            let z = 3.090_232_306; // standard normal 99.9 % quantile
-            k * (1.0 - 2.0 / (9.0 * k) + z * (2.0 / (9.0 * k)).sqrt()).powi(3)
         }
     }
 }
@@ -309,7 +285,9 @@ impl<const N: usize> InverseDepthFilter<N> {
                 break;
             }
         }
-        let gate = config.outlier_chi2.unwrap_or_else(|| chi2_999(N));
+        let gate = config
+            .outlier_chi2
+            .unwrap_or_else(|| lsq::chi2_quantile(N, 0.999));
         let measurement_chi2 = w * r.norm_squared();
         if measurement_chi2 > gate {
             return UpdateOutcome::Outlier {
@@ -496,6 +474,7 @@ impl<P: Projector<N>, const N: usize> FeatureFilters<P, N> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::factors::point_to_inverse_depth;
     use geom::{CameraModel, PinholeCamera, StereoCamera};
     use lsq::numeric::check_jacobians;
     use nalgebra::{Vector2, Vector6};

@@ -38,15 +38,15 @@
 //! Sim(3) loop-closure constraint and the re-initialisation along the spanning tree (thesis
 //! §6.2.7).
 //!
-//! **Threads** (see [`crate::graph`]): [`DoubleWindowOptimiser::optimise_shared`] plans and
+//! **Threads** (see [`crate::map`]): [`DoubleWindowOptimiser::optimise_shared`] plans and
 //! builds under a read lock, optimises with no lock held and writes back under a short write
 //! lock.
 
-use crate::ba::{
+use crate::factors::{
     AnchorObservation, AnchoredLinearization, AnchoredObservation, AnchoredPose, Projector,
     inverse_depth_to_point, linearize_anchored,
 };
-use crate::graph::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph};
+use crate::map::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph, Version};
 use lie::{LieGroup, LogJacobian, Sim3, log_jacobian_factors};
 use lsq::{
     Factor, Information, Jacobians, Manifold, Problem, RobustKernel, SolverOptions, Values, Var,
@@ -144,6 +144,22 @@ pub enum ConstraintInformation {
     /// The default: measured closer to full BA than the coarse information (module docs).
     #[default]
     Marginal,
+}
+
+impl ConstraintInformation {
+    /// Both kinds.
+    pub const ALL: [ConstraintInformation; 2] = [
+        ConstraintInformation::Coarse,
+        ConstraintInformation::Marginal,
+    ];
+
+    /// A lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ConstraintInformation::Coarse => "coarse",
+            ConstraintInformation::Marginal => "marginal",
+        }
+    }
 }
 
 /// Options of double window optimisation.
@@ -277,6 +293,9 @@ pub struct PoseConstraint {
 /// (un-)marginalisations and the pose-pose constraints.
 #[derive(Clone, Debug)]
 pub struct DwoPlan {
+    /// The graph's version when the plan was made: poses and points changed after it are
+    /// newer than the optimisation's result (see [`DoubleWindowOptimiser::apply`]).
+    pub version: Version,
     /// The reference keyframe.
     pub root: KeyframeId,
     /// The new double window.
@@ -322,6 +341,29 @@ pub struct DwoStats {
     pub cost_before: f64,
     /// Cost after.
     pub cost_after: f64,
+    /// What the write-back did.
+    pub write_back: WriteBack,
+}
+
+/// What [`DoubleWindowOptimiser::apply`] wrote into the graph and what it had to leave out
+/// because the graph changed since the plan (another thread) or a value was refused.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct WriteBack {
+    /// Keyframe poses written.
+    pub poses: usize,
+    /// Keyframes of the window removed since the plan (nothing to write).
+    pub removed_keyframes: usize,
+    /// Points written.
+    pub points: usize,
+    /// Points removed, moved or re-anchored since the plan: their newer state is kept.
+    pub superseded_points: usize,
+    /// Points the optimisation drove to a non-positive or non-finite inverse depth: they keep
+    /// their previous value (they are behind the anchor or at infinity).
+    pub rejected_points: usize,
+    /// Edge (un-)marginalisations written.
+    pub edges: usize,
+    /// Edges removed since the plan.
+    pub removed_edges: usize,
 }
 
 impl DwoStats {
@@ -339,13 +381,21 @@ pub enum DwoError {
     NoReference,
     /// A graph operation failed.
     #[error(transparent)]
-    Graph(#[from] crate::graph::GraphError),
+    Graph(#[from] crate::map::GraphError),
     /// The least-squares problem refused a factor.
     #[error(transparent)]
     Problem(#[from] lsq::ProblemError),
     /// The solver failed.
     #[error(transparent)]
     Solve(#[from] lsq::SolveError),
+    /// The poses of these keyframes of the window changed between the plan and the
+    /// write-back (a loop correction): the result, computed from their old poses, was not
+    /// written and the graph is as the other writer left it; the next optimisation re-plans.
+    #[error("the graph changed during the optimisation (poses of {} keyframes moved since the plan, e.g. {}); nothing was written", .keyframes.len(), .keyframes[0])]
+    Superseded {
+        /// The keyframes whose poses moved.
+        keyframes: Vec<KeyframeId>,
+    },
 }
 
 /// The least-squares problem of one double window optimisation, with its variables.
@@ -383,10 +433,10 @@ fn median_depth<const N: usize>(
         .keys()
         .filter_map(|&p| {
             let pt = graph.point(p)?;
-            let t_a = pose(pt.anchor)?;
+            let t_a = pose(pt.anchor())?;
             let x = t_k
                 .compose(&t_a.inverse())
-                .act(&inverse_depth_to_point(&pt.inverse_depth));
+                .act(&inverse_depth_to_point(pt.inverse_depth()));
             (x.z > 0.0).then_some(x.z)
         })
         .collect();
@@ -432,7 +482,7 @@ impl DoubleWindowOptimiser {
                 if points.contains(&pid) {
                     continue;
                 }
-                let anchor = graph.point(pid).expect("observed points exist").anchor;
+                let anchor = graph.point(pid).expect("observed points exist").anchor();
                 if window.contains(anchor) || extra_outer.contains(&anchor) {
                     points.insert(pid);
                 } else if graph.edge(k, anchor).is_some() {
@@ -573,6 +623,7 @@ impl DoubleWindowOptimiser {
             }
         }
         Ok(DwoPlan {
+            version: graph.version(),
             root,
             window,
             tree,
@@ -603,8 +654,8 @@ impl DoubleWindowOptimiser {
         for &pid in &plan.points {
             let pt = graph
                 .point(pid)
-                .ok_or(crate::graph::GraphError::UnknownPoint(pid))?;
-            let psi = problem.add_variable(pt.inverse_depth);
+                .ok_or(crate::map::GraphError::UnknownPoint(pid))?;
+            let psi = problem.add_variable(*pt.inverse_depth());
             points.push((pid, psi));
             for &o in pt.observers() {
                 let Some(&observer) = poses.get(&o) else {
@@ -612,7 +663,7 @@ impl DoubleWindowOptimiser {
                 };
                 let z = graph.keyframe(o).expect("observer exists").observations()[&pid];
                 point_constraints += 1;
-                if o == pt.anchor {
+                if o == pt.anchor() {
                     problem.add_factor(
                         AnchorObservation {
                             inverse_depth_point: psi,
@@ -626,7 +677,7 @@ impl DoubleWindowOptimiser {
                     problem.add_factor(
                         AnchoredObservation {
                             observer_from_world: observer,
-                            anchor_from_world: poses[&pt.anchor],
+                            anchor_from_world: poses[&pt.anchor()],
                             inverse_depth_point: psi,
                             measurement: z,
                             projector: projector.clone(),
@@ -695,9 +746,9 @@ impl DoubleWindowOptimiser {
         let mut info = Matrix6::<f64>::zeros();
         for &(pid, w) in &c.points {
             let pt = graph.point(pid)?;
-            let y = pose(pt.anchor)?
+            let y = pose(pt.anchor())?
                 .inverse()
-                .act(&crate::ba::inverse_depth_to_point(&pt.inverse_depth));
+                .act(&crate::factors::inverse_depth_to_point(pt.inverse_depth()));
             let mut h_yy = Matrix3::<f64>::zeros();
             let mut h_jy = SMatrix::<f64, 6, 3>::zeros();
             let mut h_jj = Matrix6::<f64>::zeros();
@@ -778,25 +829,62 @@ impl DoubleWindowOptimiser {
         Ok(())
     }
 
-    /// Writes the optimised poses and points and the edge updates back into the graph,
-    /// skipping keyframes, points and edges removed since the plan; remembers the window.
+    /// Writes the optimised poses and points and the edge updates back into the graph and
+    /// remembers the window.
+    ///
+    /// The graph may have changed since [`plan`](Self::plan) (another thread held the lock
+    /// meanwhile). If the pose of a keyframe of the window changed (a loop correction), the
+    /// result is stale: nothing is written and the error is [`DwoError::Superseded`] (the next
+    /// optimisation re-plans from the corrected graph). Otherwise keyframes removed meanwhile
+    /// are skipped, points removed, moved or re-anchored meanwhile keep their newer state,
+    /// points the optimisation pushed behind their anchor keep their old value, and edges
+    /// removed meanwhile are skipped — each counted in the returned [`WriteBack`]. In a single
+    /// thread (plan, build, solve, apply in a row) nothing is skipped.
     pub fn apply<const N: usize>(
         &mut self,
         graph: &mut SlamGraph<N>,
         plan: &DwoPlan,
         dwo: &DwoProblem,
-    ) {
+    ) -> Result<WriteBack, DwoError> {
+        let moved: Vec<KeyframeId> = dwo
+            .poses
+            .keys()
+            .copied()
+            .filter(|&k| {
+                graph
+                    .keyframe(k)
+                    .is_some_and(|kf| kf.pose_version() > plan.version)
+            })
+            .collect();
+        if !moved.is_empty() {
+            return Err(DwoError::Superseded { keyframes: moved });
+        }
+        let mut report = WriteBack::default();
         for (&k, v) in &dwo.poses {
-            let _ = graph.set_pose(k, dwo.problem.value(*v).0);
+            match graph.set_pose(k, dwo.problem.value(*v).0) {
+                Ok(()) => report.poses += 1,
+                Err(_) => report.removed_keyframes += 1,
+            }
         }
         for &(pid, v) in &dwo.points {
-            // A point driven to non-positive inverse depth keeps its old value.
-            let _ = graph.set_inverse_depth(pid, *dwo.problem.value(v));
+            if graph.point(pid).is_none_or(|p| p.version() > plan.version) {
+                report.superseded_points += 1;
+                continue;
+            }
+            match graph.set_inverse_depth(pid, *dwo.problem.value(v)) {
+                Ok(()) => report.points += 1,
+                Err(_) => report.rejected_points += 1,
+            }
         }
         for &(a, b, t) in &plan.edge_updates {
-            graph.set_edge_relative(a, b, t);
+            if graph.set_edge_relative(a, b, t) {
+                report.edges += 1;
+            } else {
+                report.removed_edges += 1;
+            }
         }
         self.previous = plan.window.clone();
+        Ok(report)
     }
 
     fn stats(plan: &DwoPlan, dwo: &DwoProblem) -> DwoStats {
@@ -824,7 +912,7 @@ impl DoubleWindowOptimiser {
         stats.time_setup = t.elapsed();
         self.solve(&mut dwo, &mut stats)?;
         let t = Instant::now();
-        self.apply(graph, &plan, &dwo);
+        stats.write_back = self.apply(graph, &plan, &dwo)?;
         stats.time_apply = t.elapsed();
         Ok(stats)
     }
@@ -847,7 +935,7 @@ impl DoubleWindowOptimiser {
         stats.time_setup = t.elapsed();
         self.solve(&mut dwo, &mut stats)?;
         let t = Instant::now();
-        self.apply(&mut graph.write(), &plan, &dwo);
+        stats.write_back = self.apply(&mut graph.write(), &plan, &dwo)?;
         stats.time_apply = t.elapsed();
         Ok(stats)
     }
@@ -913,7 +1001,7 @@ mod tests {
 #[cfg(test)]
 mod graph_tests {
     use super::*;
-    use crate::graph::SharedGraph;
+    use crate::map::SharedGraph;
     use geom::{PinholeCamera, StereoCamera};
     use lie::Se3;
     use rand::{Rng, SeedableRng};
@@ -969,7 +1057,8 @@ mod graph_tests {
                     }
                 }
             }
-            crate::registration::register_locally(&mut g, kf, 15, kf.checked_sub(1)).unwrap();
+            let previous = kf.index().checked_sub(1).map(KeyframeId::from_index);
+            crate::mapping::register_locally(&mut g, kf, 15, previous).unwrap();
             g.set_reference(kf).unwrap();
         }
         g.check_invariants().unwrap();
@@ -1000,7 +1089,7 @@ mod graph_tests {
         }
         // Move the reference back: the old inner window's edges leaving W1 are marginalised.
         let old_inner = dwo.previous.inner.clone();
-        g.set_reference(3).unwrap();
+        g.set_reference(KeyframeId(3)).unwrap();
         let plan = dwo.plan(&g).unwrap();
         // Every keyframe entering the window (and not the root) is re-initialised along the
         // spanning tree (thesis eq. 6.3).
@@ -1036,7 +1125,7 @@ mod graph_tests {
         params.information = ConstraintInformation::Marginal;
         let mut dwo = DoubleWindowOptimiser::new(params);
         dwo.optimise(&mut g, &cam).unwrap();
-        g.set_reference(3).unwrap();
+        g.set_reference(KeyframeId(3)).unwrap();
         let plan = dwo.plan(&g).unwrap();
         let mut checked = 0;
         for c in plan
@@ -1062,16 +1151,16 @@ mod graph_tests {
             problem.set_fixed(vars[&c.from].key(), true);
             for &(pid, w) in &c.points {
                 let pt = g.point(pid).unwrap();
-                let anchor = *vars.entry(pt.anchor).or_insert_with(|| {
-                    let v = problem.add_variable(FixedScaleSim3(pose(pt.anchor)));
+                let anchor = *vars.entry(pt.anchor()).or_insert_with(|| {
+                    let v = problem.add_variable(FixedScaleSim3(pose(pt.anchor())));
                     problem.set_fixed(v.key(), true);
                     v
                 });
-                let psi = problem.add_variable(pt.inverse_depth);
+                let psi = problem.add_variable(*pt.inverse_depth());
                 let info = Information::Isotropic(0.5 / w.sqrt());
                 for k in [c.from, c.to] {
                     let z = g.keyframe(k).unwrap().observations()[&pid];
-                    if k == pt.anchor {
+                    if k == pt.anchor() {
                         let f = AnchorObservation {
                             inverse_depth_point: psi,
                             measurement: z,
@@ -1116,10 +1205,8 @@ mod graph_tests {
         let err = |g: &SlamGraph<3>| {
             (1..truth.len())
                 .map(|k| {
-                    let est = g
-                        .pose(k)
-                        .unwrap()
-                        .compose(&g.pose(k - 1).unwrap().inverse());
+                    let (a, b) = (KeyframeId::from_index(k - 1), KeyframeId::from_index(k));
+                    let est = g.pose(b).unwrap().compose(&g.pose(a).unwrap().inverse());
                     let tru = Sim3::from_se3(&truth[k].compose(&truth[k - 1].inverse()));
                     (est.translation() - tru.translation()).norm()
                 })
@@ -1156,7 +1243,7 @@ mod graph_tests {
                 {
                     let g = shared.read();
                     let r = g.reference().unwrap();
-                    let candidates = crate::registration::tracking_candidates(&g, r);
+                    let candidates = crate::tracking::tracking_candidates(&g, r);
                     assert!(!candidates.is_empty());
                     assert!(g.pose(r).is_ok());
                 }
@@ -1188,5 +1275,105 @@ mod graph_tests {
         let g = shared.into_inner();
         g.check_invariants().unwrap();
         assert_eq!(g.num_keyframes(), 41);
+    }
+
+    /// A loop correction lands between the plan and the write-back (the loop-closure thread
+    /// corrected the graph while the optimiser worked without the lock): the write-back
+    /// detects that the window's poses moved, writes nothing, and the graph keeps the
+    /// correction; the next optimisation re-plans from the corrected graph.
+    #[test]
+    fn a_loop_correction_during_an_optimisation_supersedes_its_result() {
+        use crate::loop_closure::{CorrectionGroup, LoopEdge, correction::correct_graph};
+        use crate::pose_graph::PoseGraphJacobian;
+        let (g, cam, _) = wall_graph(5, 30);
+        let shared = SharedGraph::new(g);
+        let mut dwo = DoubleWindowOptimiser::new(DwoParams::new(5, 10, 300.0, 0.5));
+        // Plan and build under the read lock.
+        let (plan, mut problem) = {
+            let g = shared.read();
+            let plan = dwo.plan(&g).unwrap();
+            let problem = dwo.build(&g, &plan, &cam).unwrap();
+            (plan, problem)
+        };
+        // Meanwhile: a Sim(3) loop correction between the newest and the first keyframe,
+        // whose measured loop disagrees with the chain by 2 % in scale and 3 cm.
+        let correction = {
+            let mut g = shared.write();
+            let (first, last) = (KeyframeId(0), KeyframeId(29));
+            let chain_loop = g
+                .pose(first)
+                .unwrap()
+                .compose(&g.pose(last).unwrap().inverse());
+            let disagreement =
+                Sim3::new(lie::So3::identity(), Vector3::new(0.03, 0.0, 0.0), 1.02).unwrap();
+            let loops = [LoopEdge {
+                old: 0,
+                current: 29,
+                old_from_current: disagreement.compose(&chain_loop),
+            }];
+            correct_graph(
+                &mut g,
+                &loops,
+                CorrectionGroup::Sim3,
+                PoseGraphJacobian::Analytic(lie::LogJacobian::Exact),
+                &SolverOptions::default(),
+            )
+            .unwrap();
+            g.check_invariants().unwrap();
+            g.snapshot_state()
+        };
+        // The optimisation ran on the old poses...
+        let mut stats = DwoStats::default();
+        dwo.solve(&mut problem, &mut stats).unwrap();
+        // ...so its write-back is refused and changes nothing.
+        let result = dwo.apply(&mut shared.write(), &plan, &problem);
+        let Err(DwoError::Superseded { keyframes }) = result else {
+            panic!("a stale result was written: {result:?}");
+        };
+        assert!(keyframes.len() >= plan.window.len() - 1, "{keyframes:?}");
+        {
+            let g = shared.read();
+            g.check_invariants().unwrap();
+            assert_eq!(
+                g.snapshot_state(),
+                correction,
+                "the write-back changed the graph"
+            );
+        }
+        // The next optimisation re-plans from the corrected graph and succeeds.
+        let stats = dwo.optimise_shared(&shared, &cam).unwrap();
+        assert!(stats.cost_after <= stats.cost_before);
+        assert_eq!(
+            stats.write_back.poses,
+            stats.inner_frames + stats.outer_frames
+        );
+        shared.read().check_invariants().unwrap();
+    }
+
+    /// Tracking changes the window between plan and write-back without moving its poses (a new
+    /// keyframe, new observations, a removed point, a re-anchored point): the write-back
+    /// writes the rest and reports what it left alone.
+    #[test]
+    fn concurrent_tracking_changes_are_kept_and_reported() {
+        let (mut g, cam, _) = wall_graph(6, 30);
+        let mut dwo = DoubleWindowOptimiser::new(DwoParams::new(5, 10, 300.0, 0.5));
+        let plan = dwo.plan(&g).unwrap();
+        let mut problem = dwo.build(&g, &plan, &cam).unwrap();
+        let (removed, reanchored) = (plan.points[0], plan.points[1]);
+        let r = g.reference().unwrap();
+        let kf = g.add_keyframe(g.pose(r).unwrap());
+        let z = g.keyframe(r).unwrap().observations()[&plan.points[2]];
+        g.add_observation(kf, plan.points[2], z).unwrap();
+        g.remove_point(removed).unwrap();
+        let anchor = g.point(reanchored).unwrap().anchor();
+        g.remove_observation(anchor, reanchored).unwrap();
+        let mut stats = DwoStats::default();
+        dwo.solve(&mut problem, &mut stats).unwrap();
+        let report = dwo.apply(&mut g, &plan, &problem).unwrap();
+        g.check_invariants().unwrap();
+        assert_eq!(report.superseded_points, 2, "{report:?}");
+        assert_eq!(report.points + 2, plan.points.len());
+        assert_eq!(report.poses, plan.initial_poses.len());
+        assert_eq!(g.keyframe(kf).unwrap().observations().len(), 1);
     }
 }

@@ -29,19 +29,25 @@
 use crate::sensor::{MonoSensor, Sensor, StereoSensor};
 use crate::trajectory::{centre, forward_turn, pose_looking, sideways, sideways_with_rotation};
 use crate::world::planar_slab;
+use ba_slam::{BaSlam, BaSlamOptions, TwoViewInverseDepth};
+use bootstrap::{Bootstrap, BootstrapOptions, bootstrap};
+use features::{ImageArea, find, select_spread};
+use filter::{Anchor, GaussNewtonFilter, InverseDepthCamera};
+use filter_slam::{FilterSlam, FilterSlamOptions, MotionEstimate};
 use geom::PinholeCamera;
 use lie::{LieGroup, Se3};
 use nalgebra::{DMatrix, DVector, SVector, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use slam::ba_slam::{BaSlam, BaSlamOptions, TwoViewInverseDepth};
-use slam::bootstrap::{Bootstrap, BootstrapOptions, bootstrap};
 use slam::clock::CpuStopwatch;
-use slam::features::{ImageArea, find, select_spread};
-use slam::filter::{Anchor, GaussNewtonFilter, InverseDepthCamera};
-use slam::filter_slam::{FilterSlam, FilterSlamOptions, MotionEstimate};
 use std::time::Duration;
+
+pub mod ba_slam;
+pub mod bootstrap;
+pub mod features;
+pub mod filter;
+pub mod filter_slam;
 
 /// The four settings of thesis §4.6.1.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -56,24 +62,7 @@ pub enum Setting {
     IV,
 }
 
-/// Stereo or monocular.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum SensorKind {
-    /// Rectified stereo, baseline 0.1 m.
-    Stereo,
-    /// Monocular, bootstrapped.
-    Mono,
-}
-
-impl SensorKind {
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            SensorKind::Stereo => "stereo",
-            SensorKind::Mono => "mono",
-        }
-    }
-}
+pub use crate::sensor::SensorKind;
 
 /// Focal length (px).
 pub const FOCAL: f64 = 500.0;
@@ -345,7 +334,8 @@ pub fn run_trial(spec: &TrialSpec) -> TrialResult {
                     let psi = camera.inverse_depth_from(&z, 1.0)?;
                     Some((
                         *id,
-                        t0.inverse().act(&slam::ba::inverse_depth_to_point(&psi)),
+                        t0.inverse()
+                            .act(&slam::factors::inverse_depth_to_point(&psi)),
                     ))
                 })
                 .collect();
@@ -479,13 +469,13 @@ fn run_ba<C: InverseDepthCamera<N>, const N: usize>(
     points: &[(usize, Vector3<f64>)],
     frames: &[Vec<(usize, SVector<f64, N>)>],
     options: BaSlamOptions,
-    initialiser: Option<&dyn slam::ba_slam::PointInitialiser<C>>,
+    initialiser: Option<&dyn ba_slam::PointInitialiser<C>>,
     error: impl Fn(&Se3) -> Option<Vec<f64>>,
 ) -> Option<PipelineResult> {
     let start = CpuStopwatch::start();
     let mut ba = BaSlam::with_map(camera, SIGMA, options, *t0, points, &frames[0]);
     for i in 1..frames.len() {
-        ba.step(&frames[i - 1], &frames[i], initialiser);
+        ba.step(&frames[i - 1], &frames[i], initialiser).ok()?;
     }
     let total = start.elapsed();
     Some(PipelineResult {
@@ -575,7 +565,10 @@ pub fn run_motion_trial(spec: &TrialSpec) -> [PipelineResult; 3] {
         let mut predicted = [Se3::identity(); 3];
         for (k, estimate) in MOTION_ESTIMATES.into_iter().enumerate() {
             let clock = CpuStopwatch::start();
-            predicted[k] = slam.predict(&obs, estimate);
+            let Ok(t) = slam.predict(&obs, estimate) else {
+                return out;
+            };
+            predicted[k] = t;
             costs[k] += clock.elapsed();
         }
         if slam.update(&obs, predicted[1]).is_err() {
@@ -1121,7 +1114,7 @@ mod diagnose {
                 .map(|id| {
                     let z = find(&frames[0], *id).expect("visible");
                     let psi = camera.inverse_depth_from(&z, 1.0).expect("valid");
-                    (*id, slam::ba::inverse_depth_to_point(&psi))
+                    (*id, slam::factors::inverse_depth_to_point(&psi))
                 })
                 .collect();
             let options = BaSlamOptions {
@@ -1131,7 +1124,8 @@ mod diagnose {
             };
             let mut ba = BaSlam::with_map(camera, sigma, options, t0, &points, &frames[0]);
             for i in 1..frames.len() {
-                ba.step(&frames[i - 1], &frames[i], None);
+                ba.step(&frames[i - 1], &frames[i], None)
+                    .expect("BA-SLAM step");
             }
             return t_true - relative_end(&t0, &ba.current());
         }
@@ -1155,10 +1149,12 @@ mod diagnose {
                 .iter()
                 .filter_map(|id| find(frame, *id).map(|z| (*id, z)))
                 .collect();
-            let predicted = filter.motion_only_ba(&obs, &pose, iterations);
+            let predicted = filter
+                .motion_only_ba(&obs, &pose, iterations)
+                .expect("motion-only BA");
             filter.begin_frame(i, predicted).expect("no current pose");
             filter
-                .update(&obs, &slam::filter::LmSettings::with_iterations(iterations))
+                .update(&obs, &filter::LmSettings::with_iterations(iterations))
                 .expect("a current pose");
             pose = filter.current().expect("just added").1;
         }

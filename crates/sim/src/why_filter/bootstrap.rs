@@ -12,8 +12,8 @@
 //! 5. a standard monocular filter update between `T_b1` and `T_0` gives the initial map and
 //!    `T_0`, ready for BA-SLAM or filter-SLAM.
 
-use crate::features::{FrameMeasurements, ImageArea, find, select_spread};
-use crate::filter::{Anchor, FilterError, GaussNewtonFilter, LmSettings};
+use super::features::{FrameMeasurements, ImageArea, find, select_spread};
+use super::filter::{Anchor, FilterError, GaussNewtonFilter, LmSettings};
 use geom::PinholeCamera;
 use lie::{LieGroup, Se3};
 use nalgebra::Vector3;
