@@ -442,7 +442,7 @@ impl RunOutput {
                     .collect::<Vec<_>>()
                     .join(" ")
             }
-            None => vec!["nan"; 7].join(" "),
+            None => ["nan"; 7].join(" "),
         };
         let reason = frame
             .state

@@ -77,7 +77,8 @@ fn assert_mentions(message: &str, parts: &[&str]) {
 fn bad_frames_are_reported_with_frame_and_file_and_skipped_on_request() {
     // (case, how to break frame 1, expected error kind, words of the message)
     type Break = fn(&Path);
-    let cases: [(&str, Break, fn(&FrameErrorKind) -> bool, &[&str]); 5] = [
+    type Case<'a> = (&'a str, Break, fn(&FrameErrorKind) -> bool, &'a [&'a str]);
+    let cases: [Case; 5] = [
         (
             "missing image",
             |d| std::fs::remove_file(d.join("rgb/1.png")).unwrap(),

@@ -204,13 +204,13 @@ fn tum_fragment_associates_depth_and_undistorts_with_freiburg1_calibration() {
     // (1305031102.2058 and .2159 for frame 0): numpy gives the translation below.
     let p0 = frames[0].world_from_camera.unwrap();
     let want = [1.3315062792125016, 0.625692790708654, 1.6477454652754826];
-    for k in 0..3 {
-        assert!((p0.translation()[k] - want[k]).abs() < 1e-9);
+    for (k, w) in want.iter().enumerate() {
+        assert!((p0.translation()[k] - w).abs() < 1e-9);
     }
     let p2 = frames[2].world_from_camera.unwrap();
     let want = [1.2841030640668523, 0.6257, 1.5945869080779944];
-    for k in 0..3 {
-        assert!((p2.translation()[k] - want[k]).abs() < 1e-9);
+    for (k, w) in want.iter().enumerate() {
+        assert!((p2.translation()[k] - w).abs() < 1e-9);
     }
 }
 

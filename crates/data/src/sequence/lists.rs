@@ -299,7 +299,7 @@ pub fn kitti_stereo(p: &[[f64; 12]], path: &Path) -> Result<(PinholeCamera, f64)
         ));
     }
     let baseline = (p0[3] - p1[3]) / fx;
-    if !(baseline > 0.0) {
+    if baseline.is_nan() || baseline <= 0.0 {
         return Err(expected(
             path,
             "P1 to the right of P0 (P1[0,3] < P0[0,3])",

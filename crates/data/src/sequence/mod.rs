@@ -139,7 +139,7 @@ impl DepthImage {
     /// Depth at `(u, v)` in metres, `None` where invalid or outside the image.
     pub fn metres_at(&self, u: usize, v: usize) -> Option<f64> {
         let d = self.raw.get_checked(u as i64, v as i64)?;
-        (d != 0 && d < self.max_valid_raw).then(|| d as f64 * self.metres_per_unit)
+        (d != 0 && d < self.max_valid_raw).then_some(d as f64 * self.metres_per_unit)
     }
 
     /// The whole image in metres as `f32`, NaN where invalid.

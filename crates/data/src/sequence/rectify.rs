@@ -89,7 +89,7 @@ impl StereoRectifier {
     ) -> Option<Self> {
         let r = right_from_left.rotation().rotation_matrix();
         let t = *right_from_left.translation();
-        if !(t.norm() > 0.0) {
+        if t.norm().is_nan() || t.norm() <= 0.0 {
             return None;
         }
         let first = rectify_stereo(&left.pinhole, &right.pinhole, &r, &t, Vector2::zeros());
