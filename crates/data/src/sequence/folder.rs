@@ -56,7 +56,7 @@ fn stem_time(p: &Path) -> Option<f64> {
     Some(if v >= 1e15 { v / 1e9 } else { v })
 }
 
-fn list_images(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
+pub(crate) fn list_images(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|source| DataError::Io {
             path: dir.to_path_buf(),

@@ -28,19 +28,6 @@ pub(crate) fn image_dirs(root: &Path) -> Option<(PathBuf, Option<PathBuf>)> {
     None
 }
 
-fn images_in(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|source| DataError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| super::folder::is_image(p))
-        .collect();
-    v.sort();
-    Ok(v)
-}
-
 pub(crate) fn open(
     root: &Path,
     _options: &OpenOptions,
@@ -54,15 +41,7 @@ pub(crate) fn open(
         },
     })?;
     let mut warnings = Vec::new();
-    let left = images_in(&left_dir)?;
-    if left.is_empty() {
-        return Err(DataError::File {
-            path: left_dir,
-            kind: ParseErrorKind::Empty {
-                expected: "images (.png, .jpg, .pgm)".into(),
-            },
-        });
-    }
+    let left = super::folder::list_images(&left_dir)?;
     let size = image_size(&left[0])?;
     let calib_path = root.join("calib.txt");
     let kind = if right_dir.is_some() {
