@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 mod args;
 mod ba;
+mod eval;
 mod experiment;
 mod inspect;
 mod pgo;
@@ -24,6 +25,8 @@ enum Command {
     /// Reproduce an experiment of the thesis.
     #[command(subcommand)]
     Experiment(experiment::ExperimentCommand),
+    /// Trajectory errors (ATE, RPE) of an estimate against ground truth, as evo computes them.
+    Eval(eval::EvalArgs),
     /// Pose-graph optimisation of a g2o file (SE(2), SE(3) or Sim(3)).
     Pgo(pgo::PgoArgs),
     /// Bundle adjustment of a BAL problem or a synthetic scene.
@@ -51,6 +54,7 @@ fn main() -> ExitCode {
 fn run(command: Command) -> Result<()> {
     match command {
         Command::Experiment(cmd) => experiment::run(cmd),
+        Command::Eval(args) => eval::run(args),
         Command::Pgo(args) => pgo::run(args),
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),
