@@ -381,8 +381,8 @@ fn stream<const AVX2: bool>(
                 let prev = &prev[(x - 1) * nd..];
                 let add = &vsum[col(x as i64 + br as i64)];
                 let sub = &vsum[col(x as i64 - br as i64 - 1)];
-                for d in 0..nd {
-                    cur[d] = prev[d] + add[d] - sub[d];
+                for (((c, &p), &a), &s) in cur[..nd].iter_mut().zip(prev).zip(add).zip(sub) {
+                    *c = p + a - s;
                 }
             }
             // Horizontal minimum over shifted blocks, into the ring.
@@ -493,29 +493,131 @@ fn decide_row(
 
 /// 3×3 median over the valid (finite) values of the neighbourhood; invalid pixels with at least
 /// 5 valid neighbours are filled, pixels with fewer valid neighbours become invalid.
+///
+/// Interior pixels whose nine neighbours are all valid (most of them) take the median from a
+/// sorting network on the values' total-order keys (the order `f32::total_cmp` sorts by), which
+/// vectorises across the row; the others go through [`median3_valid_pixel`]. Identical results.
 fn median3_valid(d: &Image<f32>) -> Image<f32> {
+    let (w, h) = (d.width(), d.height());
+    if w < 3 || h < 3 {
+        return median3_valid_slow(d);
+    }
+    // total_cmp's key: flip the magnitude bits of negative values; NaN (invalid) → u32::MAX
+    // here, only used where all nine are valid.
+    let key = |x: f32| {
+        let b = x.to_bits();
+        b ^ ((((b as i32) >> 31) as u32) >> 1) ^ 0x8000_0000
+    };
+    let unkey = |k: u32| {
+        let b = k ^ 0x8000_0000;
+        f32::from_bits(b ^ ((((b as i32) >> 31) as u32) >> 1))
+    };
+    let keys: Vec<u32> = d.data().iter().map(|&x| key(x)).collect();
+    let valid: Vec<u8> = d.data().iter().map(|x| x.is_finite() as u8).collect();
+    let st = d.stride();
+    let mut out = Image::<f32>::filled(w, h, f32::NAN);
+    let mut med = vec![0u32; w];
+    let mut cnt = vec![0u8; w];
+    for v in 0..h {
+        let o = out.row_mut(v);
+        if v == 0 || v == h - 1 {
+            for (u, px) in o.iter_mut().enumerate() {
+                *px = median3_valid_pixel(d, u, v);
+            }
+            continue;
+        }
+        let rows: [&[u32]; 3] =
+            std::array::from_fn(|r| &keys[(v + r - 1) * st..(v + r - 1) * st + w]);
+        let vrows: [&[u8]; 3] =
+            std::array::from_fn(|r| &valid[(v + r - 1) * st..(v + r - 1) * st + w]);
+        for u in 1..w - 1 {
+            let mut p = [
+                rows[0][u - 1],
+                rows[0][u],
+                rows[0][u + 1],
+                rows[1][u - 1],
+                rows[1][u],
+                rows[1][u + 1],
+                rows[2][u - 1],
+                rows[2][u],
+                rows[2][u + 1],
+            ];
+            // Paeth's 19-exchange median-of-9 network.
+            macro_rules! s {
+                ($a:expr, $b:expr) => {{
+                    let (x, y) = (p[$a], p[$b]);
+                    p[$a] = x.min(y);
+                    p[$b] = x.max(y);
+                }};
+            }
+            s!(1, 2);
+            s!(4, 5);
+            s!(7, 8);
+            s!(0, 1);
+            s!(3, 4);
+            s!(6, 7);
+            s!(1, 2);
+            s!(4, 5);
+            s!(7, 8);
+            s!(0, 3);
+            s!(5, 8);
+            s!(4, 7);
+            s!(3, 6);
+            s!(1, 4);
+            s!(2, 5);
+            s!(4, 7);
+            s!(4, 2);
+            s!(6, 4);
+            s!(4, 2);
+            med[u] = p[4];
+            cnt[u] = vrows[0][u - 1]
+                + vrows[0][u]
+                + vrows[0][u + 1]
+                + vrows[1][u - 1]
+                + vrows[1][u]
+                + vrows[1][u + 1]
+                + vrows[2][u - 1]
+                + vrows[2][u]
+                + vrows[2][u + 1];
+        }
+        for u in 0..w {
+            o[u] = if u > 0 && u + 1 < w && cnt[u] == 9 {
+                unkey(med[u])
+            } else {
+                median3_valid_pixel(d, u, v)
+            };
+        }
+    }
+    out
+}
+
+/// [`median3_valid`] pixel by pixel (the reference; also its border and partial cases).
+fn median3_valid_slow(d: &Image<f32>) -> Image<f32> {
+    Image::from_fn(d.width(), d.height(), |u, v| median3_valid_pixel(d, u, v))
+}
+
+/// One pixel of [`median3_valid`]: sort the valid neighbours, take the middle one.
+fn median3_valid_pixel(d: &Image<f32>, u: usize, v: usize) -> f32 {
     let (w, h) = (d.width() as i64, d.height() as i64);
-    Image::from_fn(d.width(), d.height(), |u, v| {
-        let mut a = [0.0f32; 9];
-        let mut n = 0;
-        for dv in -1..=1i64 {
-            for du in -1..=1i64 {
-                let (x, y) = (u as i64 + du, v as i64 + dv);
-                if x >= 0 && y >= 0 && x < w && y < h {
-                    let val = d.get(x as usize, y as usize);
-                    if val.is_finite() {
-                        a[n] = val;
-                        n += 1;
-                    }
+    let mut a = [0.0f32; 9];
+    let mut n = 0;
+    for dv in -1..=1i64 {
+        for du in -1..=1i64 {
+            let (x, y) = (u as i64 + du, v as i64 + dv);
+            if x >= 0 && y >= 0 && x < w && y < h {
+                let val = d.get(x as usize, y as usize);
+                if val.is_finite() {
+                    a[n] = val;
+                    n += 1;
                 }
             }
         }
-        if n < 5 {
-            return f32::NAN;
-        }
-        a[..n].sort_by(|x, y| x.total_cmp(y));
-        a[n / 2]
-    })
+    }
+    if n < 5 {
+        return f32::NAN;
+    }
+    a[..n].sort_by(|x, y| x.total_cmp(y));
+    a[n / 2]
 }
 
 /// Converts a depth image (e.g. 16-bit millimetres) to a disparity image of a virtual stereo
@@ -741,7 +843,7 @@ mod tests {
                 }
             }
             if params.median_filter {
-                disp = median3_valid(&disp);
+                disp = median3_valid_slow(&disp);
             }
             Ok(disp)
         }
@@ -833,6 +935,31 @@ mod tests {
             assert_eq!(
                 (spread[i] ^ spread[j]).count_ones(),
                 (packed.data()[i] ^ packed.data()[j]).count_ones()
+            );
+        }
+    }
+
+    #[test]
+    fn fast_median_equals_the_sorting_one() {
+        let mut x = 5u64;
+        let mut next = || {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (x >> 40) as u32
+        };
+        for (w, h) in [(1, 1), (2, 5), (3, 3), (17, 9), (40, 12)] {
+            let img = Image::<f32>::from_fn(w, h, |_, _| match next() % 10 {
+                0 | 1 => f32::NAN,
+                2 => -0.0,
+                3 => 0.0,
+                k => (next() % 64) as f32 * 0.25 - if k == 4 { 3.0 } else { 0.0 },
+            });
+            let bits = |i: &Image<f32>| i.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&median3_valid(&img)),
+                bits(&median3_valid_slow(&img)),
+                "{w}×{h}"
             );
         }
     }
