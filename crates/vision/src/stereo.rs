@@ -393,13 +393,11 @@ fn stream<const AVX2: bool>(
             } else {
                 for x in 0..w {
                     let (x0, x1) = (x.saturating_sub(sr), (x + sr).min(w - 1));
-                    let t = &mut hm[x * nd..(x + 1) * nd];
-                    t.copy_from_slice(&agg[x0 * nd..(x0 + 1) * nd]);
-                    for xx in x0 + 1..=x1 {
-                        for (a, &b) in t.iter_mut().zip(&agg[xx * nd..(xx + 1) * nd]) {
-                            *a = (*a).min(b);
-                        }
-                    }
+                    min_of_rows(
+                        &mut hm[x * nd..(x + 1) * nd],
+                        &agg[x0 * nd..(x1 + 1) * nd],
+                        nd,
+                    );
                 }
             }
         }
@@ -409,11 +407,14 @@ fn stream<const AVX2: bool>(
         // Output row y: vertical minimum over the rows y − s … y + s that exist.
         let y = ya - sr;
         let (y0, y1) = (y.saturating_sub(sr), (y + sr).min(h - 1));
-        vmin.copy_from_slice(&hmin[(y0 % min_slots) * row_len..(y0 % min_slots + 1) * row_len]);
-        for yy in y0 + 1..=y1 {
-            let s = yy % min_slots;
-            for (a, &b) in vmin.iter_mut().zip(&hmin[s * row_len..(s + 1) * row_len]) {
-                *a = (*a).min(b);
+        let row = |i: usize| {
+            let s = (y0 + i).min(y1) % min_slots;
+            &hmin[s * row_len..(s + 1) * row_len]
+        };
+        min_of(&mut vmin, row(0), row(1), row(2), row(3), row(4));
+        for i in 5..=y1 - y0 {
+            for (o, &x) in vmin.iter_mut().zip(row(i)) {
+                *o = (*o).min(x);
             }
         }
         decide_row(&vmin, w, nd, params, &mut right_packed, disp.row_mut(y));
@@ -422,6 +423,37 @@ fn stream<const AVX2: bool>(
         disp = median3_valid(&disp);
     }
     disp
+}
+
+/// `out = min` of the consecutive length-`n` rows of `src` (element-wise).
+#[inline(always)]
+fn min_of_rows(out: &mut [u16], src: &[u16], n: usize) {
+    let k = src.len() / n;
+    let r = |i: usize| &src[i * n..(i + 1) * n];
+    match k {
+        1 => min_of(out, r(0), r(0), r(0), r(0), r(0)),
+        2 => min_of(out, r(0), r(1), r(1), r(1), r(1)),
+        3 => min_of(out, r(0), r(1), r(2), r(2), r(2)),
+        4 => min_of(out, r(0), r(1), r(2), r(3), r(3)),
+        _ => {
+            min_of(out, r(0), r(1), r(2), r(3), r(4));
+            for i in 5..k {
+                for (o, &x) in out.iter_mut().zip(r(i)) {
+                    *o = (*o).min(x);
+                }
+            }
+        }
+    }
+}
+
+/// `out[i] = min(a[i], b[i], c[i], d[i], e[i])` in one vectorisable pass.
+#[inline(always)]
+fn min_of(out: &mut [u16], a: &[u16], b: &[u16], c: &[u16], d: &[u16], e: &[u16]) {
+    let n = out.len();
+    let (a, b, c, d, e) = (&a[..n], &b[..n], &c[..n], &d[..n], &e[..n]);
+    for i in 0..n {
+        out[i] = a[i].min(b[i]).min(c[i]).min(d[i]).min(e[i]);
+    }
 }
 
 /// Winner-takes-all of one row of aggregated costs `[x][d]`, with the uniqueness test,
