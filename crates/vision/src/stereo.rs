@@ -217,7 +217,7 @@ unsafe fn census_row_avx2(img: &GrayImage, v: usize, x0: usize, x1: usize, out: 
 /// `INVALID_COST` for `d > x`. `rev` is the right census row reversed (`rev[w−1−x] = R(x)`) and
 /// padded with `nd` zeros, so that `R(x − d) = rev[w − 1 − x + d]` is contiguous in `d`.
 #[inline(always)]
-fn cost_row<const AVX2: bool>(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u16]) {
+fn cost_row<const AVX2: bool>(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u8]) {
     let w = lrow.len();
     let mut done = 0;
     #[cfg(target_arch = "x86_64")]
@@ -230,7 +230,7 @@ fn cost_row<const AVX2: bool>(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u
         let base = w - 1 - x;
         let o = &mut out[x * nd..(x + 1) * nd];
         for d in done..nd {
-            o[d] = (l ^ rev[base + d]).count_ones() as u16;
+            o[d] = (l ^ rev[base + d]).count_ones() as u8;
         }
     }
     // Disparities reaching past the left border.
@@ -241,10 +241,10 @@ fn cost_row<const AVX2: bool>(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u
 
 /// Hamming costs of [`cost_row`] for the first `nd / 16 · 16` disparities of every pixel, 16 per
 /// step: XOR of four words per vector, byte popcounts by the `pshufb` nibble table, `psadbw`
-/// sums per word, reordered and packed to u16. Returns the number of disparities done per pixel.
+/// sums per word, reordered and packed to bytes. Returns the number of disparities done per pixel.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn cost_row_avx2(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u16]) -> usize {
+unsafe fn cost_row_avx2(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u8]) -> usize {
     use std::arch::x86_64::*;
     let w = lrow.len();
     let n16 = nd / 16 * 16;
@@ -282,8 +282,11 @@ unsafe fn cost_row_avx2(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u16]) -
                     )
                 };
                 let (lo, hi) = (eight(d), eight(d + 8));
-                let packed = _mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_packus_epi32(lo, hi));
-                _mm256_storeu_si256(o.add(d) as *mut __m256i, packed);
+                let w16 = _mm256_permute4x64_epi64::<0b11_01_10_00>(_mm256_packus_epi32(lo, hi));
+                // 16 u16 → 16 bytes (costs ≤ 48).
+                let b = _mm256_packus_epi16(w16, w16);
+                let b = _mm256_castsi256_si128(_mm256_permute4x64_epi64::<0b00_00_10_00>(b));
+                _mm_storeu_si128(o.add(d) as *mut __m128i, b);
                 d += 16;
             }
         }
@@ -291,7 +294,7 @@ unsafe fn cost_row_avx2(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u16]) -
     n16
 }
 
-const INVALID_COST: u16 = 64;
+const INVALID_COST: u8 = 64;
 
 /// The streaming matcher (see [`block_match`]); `AVX2` selects the census and cost kernels, the
 /// rest is plain integer code that the compiler vectorises in either instance.
@@ -312,10 +315,10 @@ fn stream<const AVX2: bool>(
     census_spread::<AVX2>(right, params.census_radius, &mut cr);
     // Ring of pixel-cost rows (row y in slot y mod (2r + 2)).
     let cost_slots = 2 * br + 2;
-    let mut costs = vec![0u16; cost_slots * row_len];
+    let mut costs = vec![0u8; cost_slots * row_len];
     let mut rev = vec![0u64; w + nd];
     let mut computed = 0usize; // cost rows 0..computed are (or were) in the ring
-    let mut ensure = |y: usize, costs: &mut Vec<u16>| {
+    let mut ensure = |y: usize, costs: &mut Vec<u8>| {
         while computed <= y {
             let yy = computed;
             let rrow = &cr[yy * w..(yy + 1) * w];
@@ -353,7 +356,7 @@ fn stream<const AVX2: bool>(
                 for dy in -(br as i64)..=br as i64 {
                     let r = crow(clamp_y(dy));
                     for (s, &c) in vsum.iter_mut().zip(&costs[r]) {
-                        *s += c;
+                        *s += c as u16;
                     }
                 }
             } else {
@@ -362,7 +365,7 @@ fn stream<const AVX2: bool>(
                 ensure(add, &mut costs);
                 let (ra, rs) = (crow(add), crow(sub));
                 for ((s, &a), &b) in vsum.iter_mut().zip(&costs[ra]).zip(&costs[rs]) {
-                    *s = *s + a - b;
+                    *s = *s + a as u16 - b as u16;
                 }
             }
             // Horizontal box sums (clamped columns), incrementally.
