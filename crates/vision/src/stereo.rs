@@ -267,8 +267,8 @@ unsafe fn cost_row_avx2(lrow: &[u64], rev: &[u64], nd: usize, out: &mut [u8]) ->
             );
             _mm256_sad_epu8(c, zero)
         };
-        for x in 0..w {
-            let l = _mm256_set1_epi64x(lrow[x] as i64);
+        for (x, &lw) in lrow.iter().enumerate() {
+            let l = _mm256_set1_epi64x(lw as i64);
             let p = rev.as_ptr().add(w - 1 - x);
             let o = out.as_mut_ptr().add(x * nd);
             let mut d = 0;
