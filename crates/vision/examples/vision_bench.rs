@@ -7,7 +7,9 @@
 //!   vision_bench orb IMG NFEATURES
 //!   vision_bench lk IMG0 IMG1 POINTS.txt LEVELS  (points: "u v" per line; prints tracks)
 //!   vision_bench stereo LEFT RIGHT MAXDISP BLOCK OUT.f32
-//!   vision_bench tvl1 IMG0 IMG1 OUT         (writes OUT.du, OUT.dv as raw f32)
+//!   vision_bench tvl1 IMG0 IMG1 OUT [ITERATIONS [WARPS]]
+//!                                           (writes OUT.du, OUT.dv as raw f32; default params
+//!                                           unless ITERATIONS / WARPS per warp are given)
 
 use std::time::Instant;
 use vision::fast::fast9_pyramid;
@@ -156,7 +158,13 @@ fn main() {
         "tvl1" => {
             let i0 = load_gray_u8(arg(2)).expect("image 0");
             let i1 = load_gray_u8(arg(3)).expect("image 1");
-            let params = vision::tvl1::Tvl1Params::default();
+            let mut params = vision::tvl1::Tvl1Params::default();
+            if let Some(it) = a.get(5) {
+                params.iterations = it.parse().expect("iterations");
+            }
+            if let Some(wp) = a.get(6) {
+                params.warps = wp.parse().expect("warps");
+            }
             let (ms, f) = time_ms(1, || {
                 vision::tvl1::tvl1_flow(&i0, &i1, &params).expect("flow")
             });
