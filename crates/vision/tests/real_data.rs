@@ -134,6 +134,18 @@ fn simd_and_scalar_paths_agree_on_real_frames() {
         };
         let f = || format!("{:?}", block_match(&l, &r, &params).unwrap().data());
         assert_eq!(f(), vision::simd::scalar_only(f), "stereo");
+        let tv = vision::tvl1::Tvl1Params {
+            levels: 3,
+            warps: 2,
+            iterations: 10,
+            ..Default::default()
+        };
+        let f = || {
+            let flow = vision::tvl1::tvl1_flow(&l, &r, &tv).unwrap();
+            let bits = |i: &Image<f32>| i.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            (bits(&flow.du), bits(&flow.dv))
+        };
+        assert!(f() == vision::simd::scalar_only(f), "TV-L1");
     }
 }
 
