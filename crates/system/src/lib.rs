@@ -8,3 +8,11 @@
 //! recognition, and the threads of thesis §6.5.2. It knows no simulator.
 
 #![warn(missing_docs)]
+
+pub mod association;
+pub mod config;
+pub mod frame;
+pub mod keyframes;
+pub mod live;
+pub mod search;
+pub mod tracker;
