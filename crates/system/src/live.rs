@@ -334,6 +334,14 @@ impl LiveSystem {
             stats,
             ..
         } = tracked;
+        // Revisits reuse the map (thesis §6.5.2): the keyframe that sees most of what this frame
+        // tracked becomes the reference when it is at least as near as the current one, so a
+        // camera browsing a mapped place tracks against its keyframes instead of adding new ones.
+        let reference = if matches!(state, TrackingState::Lost(_)) {
+            reference
+        } else {
+            self.reuse_reference(reference, &camera_from_world, &matches)
+        };
         let reason = if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_)) {
             let g = self.graph.read();
             keyframe_reason(
@@ -372,6 +380,43 @@ impl LiveSystem {
             time: Duration::ZERO,
             time_tracking,
         })
+    }
+
+    /// The keyframe to track the next frame against: of the keyframes observing this frame's
+    /// matched points, the one observing most of them, if it is no farther from the camera than
+    /// the current reference (else the current reference). Made the graph's reference.
+    fn reuse_reference(
+        &mut self,
+        reference: KeyframeId,
+        camera_from_world: &Sim3,
+        matches: &[(slam::map::PointId, nalgebra::Vector3<f64>)],
+    ) -> KeyframeId {
+        let best = {
+            let g = self.graph.read();
+            let mut seen: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
+            for (p, _) in matches {
+                if let Some(pt) = g.point(*p) {
+                    for &o in pt.observers() {
+                        *seen.entry(o).or_default() += 1;
+                    }
+                }
+            }
+            let centre = |t: &Sim3| t.inverse().act(&nalgebra::Vector3::zeros());
+            let here = centre(camera_from_world);
+            let distance = |k: KeyframeId| {
+                g.pose(k)
+                    .map_or(f64::INFINITY, |t| (centre(&t) - here).norm())
+            };
+            let own = seen.get(&reference).copied().unwrap_or(0);
+            seen.into_iter()
+                .filter(|&(k, n)| k != reference && n > own && distance(k) <= distance(reference))
+                .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+                .map(|(k, _)| k)
+        };
+        match best {
+            Some(k) if self.graph.write().set_reference(k).is_ok() => k,
+            _ => reference,
+        }
     }
 
     /// Records a frame's pose and state; `reference` is the keyframe its pose is kept relative
