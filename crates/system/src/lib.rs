@@ -8,3 +8,4 @@
 //! recognition, and the threads of thesis §6.5.2. It knows no simulator.
 
 #![warn(missing_docs)]
+pub mod place_recognition;
