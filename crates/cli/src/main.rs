@@ -11,6 +11,7 @@ mod experiment;
 mod inspect;
 mod pgo;
 mod plot;
+mod vocabulary;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
 #[derive(Parser, Debug)]
@@ -34,6 +35,8 @@ enum Command {
     /// Look at what the visual front-end sees (corners, disparity, flow, tracks, matches).
     #[command(subcommand)]
     Inspect(inspect::InspectCommand),
+    /// Train the bag-of-words vocabulary of place recognition (DBoW2 YAML).
+    Vocabulary(vocabulary::VocabularyArgs),
     /// The demo: double window optimisation on the simulated monocular double loop (thesis
     /// Figures 6.11–6.12) with cDWO and gDWO; plots and summary.json written to dwslam-demo/.
     Demo,
@@ -58,6 +61,7 @@ fn run(command: Command) -> Result<()> {
         Command::Pgo(args) => pgo::run(args),
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),
+        Command::Vocabulary(args) => vocabulary::run(args),
         Command::Demo => experiment::dwo::run(experiment::dwo::DwoArgs::demo()),
     }
 }

@@ -88,6 +88,47 @@ pub fn mahalanobis(
         .map_or(f64::INFINITY, |c| delta.dot(&c.solve(&delta)).sqrt())
 }
 
+/// The maximum-likelihood rigid motion under the noise model of the [module docs](self):
+/// Gauss-Newton on `Σᵢ Δᵢᵀ Wᵢ Δᵢ`, `Δᵢ = x_q,i − T·x_o,i`, `Wᵢ = (Σ_q,i + R Σ_o,i Rᵀ)⁻¹`
+/// (the weights re-evaluated at each iterate's rotation), from `start`, with the
+/// left-multiplicative update `T ← exp(δ)·T` (thesis eq. 2.104) and `∂(exp(δ)·p)/∂δ = [I | −p̂]`
+/// at `δ = 0`, `δ = (v, ω)`. Arun's closed form (eq. 6.9) weights every point alike, so the
+/// far, noisy ones pull as hard as the near ones; this is the same fit weighted as the
+/// inlier gate weighs. Returns `start` if the normal equations are singular.
+pub fn refine_rigid(
+    start: &Se3,
+    target: &[(Vector3<f64>, Matrix3<f64>)],
+    source: &[(Vector3<f64>, Matrix3<f64>)],
+    iterations: usize,
+) -> Se3 {
+    let mut pose = *start;
+    for _ in 0..iterations {
+        let r = pose.rotation().rotation_matrix();
+        let mut h = nalgebra::Matrix6::<f64>::zeros();
+        let mut g = nalgebra::Vector6::<f64>::zeros();
+        for ((x_q, cov_q), (x_o, cov_o)) in target.iter().zip(source) {
+            let p = pose.act(x_o);
+            let Some(w) = (cov_q + r * cov_o * r.transpose()).try_inverse() else {
+                continue;
+            };
+            let mut a = nalgebra::Matrix3x6::<f64>::zeros();
+            a.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
+            a.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-lie::skew(&p)));
+            let aw = a.transpose() * w;
+            h += aw * a;
+            g += aw * (x_q - p);
+        }
+        let Some(delta) = h.cholesky().map(|c| c.solve(&g)) else {
+            return pose;
+        };
+        pose = Se3::exp(&delta).compose(&pose);
+        if delta.norm() < 1e-10 {
+            break;
+        }
+    }
+    pose
+}
+
 /// The rigid motion of thesis eq. 6.9 as a RANSAC problem: `target_i ≈ T·source_i`, minimal
 /// samples of 3 by Arun's closed form (`geom::align::align_se3`), the re-fit to all inliers
 /// by the same least squares, the error the Mahalanobis distance of the
@@ -255,9 +296,16 @@ fn verify_rigid(
     // their prediction; then the motion is re-fitted to all consistent matches.
     for _ in 0..2 {
         pairs = guided_matches(query, old, &pose, pairs, config);
-        let t: Vec<_> = pairs.iter().map(|m| query.points[m.query].unwrap_or_default()).collect();
-        let s: Vec<_> = pairs.iter().map(|m| old.points[m.train].unwrap_or_default()).collect();
-        if let Ok(refit) = align_se3(&t, &s) {
+        let t: Vec<_> = pairs
+            .iter()
+            .map(|m| (query.points[m.query].unwrap_or_default(), cov(query, m.query)))
+            .collect();
+        let s: Vec<_> = pairs
+            .iter()
+            .map(|m| (old.points[m.train].unwrap_or_default(), cov(old, m.train)))
+            .collect();
+        {
+            let refit = refine_rigid(&pose, &t, &s, 5);
             let consistent: Vec<DMatch> = pairs
                 .iter()
                 .copied()
@@ -506,6 +554,53 @@ mod tests {
                 r.iterations
             );
         }
+    }
+
+    /// Heteroscedastic noise (σ ∝ z²): the weighted refinement is exact on exact data and
+    /// beats Arun's unweighted fit on noisy data (over 20 trials, in mean rotation error).
+    #[test]
+    fn weighted_refinement_beats_the_unweighted_fit() {
+        let config = PlaceRecognitionConfig::default();
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let truth = Se3::new(So3::exp(&Vector3::new(0.2, 0.3, -0.1)), Vector3::new(0.2, 0.0, -0.3));
+        let (mut arun_total, mut refined_total) = (0.0, 0.0);
+        for trial in 0..20 {
+            let mut target = Vec::new();
+            let mut source = Vec::new();
+            for _ in 0..80 {
+                let x_o = Vector3::new(
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(0.8..6.0),
+                );
+                let x_q = truth.act(&x_o);
+                let (c_o, c_q) = (
+                    point_covariance(&x_o, 1.0, 585.0, &config),
+                    point_covariance(&x_q, 1.0, 585.0, &config),
+                );
+                let sample = |x: &Vector3<f64>, c: &Matrix3<f64>, rng: &mut ChaCha8Rng| {
+                    let g = Vector3::from_fn(|_, _| {
+                        let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
+                        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+                    });
+                    if trial == 0 { *x } else { x + c.cholesky().unwrap().l() * g }
+                };
+                source.push((sample(&x_o, &c_o, &mut rng), c_o));
+                target.push((sample(&x_q, &c_q, &mut rng), c_q));
+            }
+            let t: Vec<_> = target.iter().map(|p| p.0).collect();
+            let s: Vec<_> = source.iter().map(|p| p.0).collect();
+            let arun = align_se3(&t, &s).unwrap();
+            let refined = refine_rigid(&arun, &target, &source, 10);
+            let err = |p: &Se3| p.compose(&truth.inverse()).rotation().angle();
+            if trial == 0 {
+                assert!(err(&refined) < 1e-9 && err(&arun) < 1e-9);
+                continue;
+            }
+            arun_total += err(&arun);
+            refined_total += err(&refined);
+        }
+        assert!(refined_total < 0.8 * arun_total, "{refined_total} vs {arun_total}");
     }
 
     #[test]

@@ -492,6 +492,16 @@ pub fn load_vocabulary(
     data_root: Option<&Path>,
     orb: &OrbParams,
 ) -> Result<LoadedVocabulary, VocabularyError> {
+    load_vocabulary_cached(file, data_root, orb, cache_dir().as_deref())
+}
+
+/// [`load_vocabulary`] with the cache in `cache` (none: train every time).
+pub fn load_vocabulary_cached(
+    file: Option<&Path>,
+    data_root: Option<&Path>,
+    orb: &OrbParams,
+    cache: Option<&Path>,
+) -> Result<LoadedVocabulary, VocabularyError> {
     if let Some(path) = file {
         return Ok(LoadedVocabulary {
             vocabulary: std::sync::Arc::new(Vocabulary::load_dbow_yaml(path)?),
@@ -506,7 +516,7 @@ pub fn load_vocabulary(
         )
     })?;
     let set = TrainingSet::read(&default_training_images(root)?, TrainingParams::new(*orb))?;
-    let cached = cache_dir().map(|d| cache_file(&d, &set));
+    let cached = cache.map(|d| cache_file(d, &set));
     if let Some(path) = &cached
         && let Ok(v) = Vocabulary::load_dbow_yaml(path)
     {
@@ -519,7 +529,7 @@ pub fn load_vocabulary(
     let trained = train(&set, &|_, _| {})?;
     let seconds = t0.elapsed().as_secs_f64();
     let cached = match cached {
-        None => Err("neither XDG_CACHE_HOME nor HOME is set".to_string()),
+        None => Err("no cache folder (neither XDG_CACHE_HOME nor HOME is set)".to_string()),
         Some(path) => path
             .parent()
             .map_or(Ok(()), std::fs::create_dir_all)
@@ -590,6 +600,43 @@ mod tests {
         let leftovers = std::fs::read_dir(&dir).unwrap().count();
         assert_eq!(leftovers, 1, "no temporary file is left");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The default vocabulary: 22 distinct images, a shape from the descriptor count, the same
+    /// vocabulary from two trainings, cached on the first load and read back on the second, a
+    /// corrupt cache trained over.
+    #[test]
+    fn default_vocabulary_trains_reproducibly_and_is_cached() {
+        let Some(root) = data::paths::require("slambook2_sample_images").and_then(|_| {
+            data::paths::dataset_root()
+        }) else {
+            return;
+        };
+        let orb = crate::place_recognition::OrbConfig::default().params();
+        let set = TrainingSet::read(&default_training_images(&root).unwrap(), TrainingParams::new(orb))
+            .unwrap();
+        assert_eq!((set.images.len(), set.duplicates.len()), (22, 1));
+        assert!(set.duplicates[0].ends_with("rgbd_pair/1.png"));
+        let a = train(&set, &|_, _| {}).unwrap();
+        let b = train(&set, &|_, _| {}).unwrap();
+        assert_eq!(a.vocabulary, b.vocabulary);
+        assert_eq!((a.vocabulary.k, a.vocabulary.levels), tree_shape(a.descriptors));
+        let per_word = a.descriptors as f64 / a.vocabulary.num_words() as f64;
+        assert!((5.0..20.0).contains(&per_word), "{per_word} descriptors per word");
+        let cache = std::env::temp_dir().join(format!("dwslam-voccache-{}", std::process::id()));
+        let load = || load_vocabulary_cached(None, Some(&root), &orb, Some(&cache)).unwrap();
+        let first = load();
+        let VocabularyOrigin::Trained { cached: Ok(path), .. } = &first.origin else {
+            panic!("{:?}", first.origin);
+        };
+        assert_eq!(*first.vocabulary, a.vocabulary);
+        let second = load();
+        assert_eq!(second.origin, VocabularyOrigin::Cache(path.clone()));
+        assert_eq!(*second.vocabulary, a.vocabulary);
+        std::fs::write(path, "vocabulary: {k: 2").unwrap();
+        assert!(matches!(load().origin, VocabularyOrigin::Trained { cached: Ok(_), .. }));
+        assert_eq!(load().origin, VocabularyOrigin::Cache(path.clone()));
+        std::fs::remove_dir_all(&cache).unwrap();
     }
 
     #[test]
