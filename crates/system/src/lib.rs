@@ -9,3 +9,4 @@
 
 #![warn(missing_docs)]
 pub mod place_recognition;
+pub mod dense_model;

@@ -32,13 +32,14 @@ impl KeyframeFeatures {
     }
 }
 
-/// The depth at a keypoint: the depth of the nearest pixel, accepted only if the valid depths
+/// The depth at an image point (a keypoint, a sampled pixel) unless it lies on a depth edge:
+/// the depth of the nearest pixel, accepted only if the valid depths
 /// of its 3×3 neighbourhood all lie within `edge_ratio` (relative) of it. FAST corners often
 /// sit on depth discontinuities, where the pixel's depth may belong to either side (and, with
 /// colour and depth not registered exactly, to the wrong one); a relative spread of a few
 /// percent over one pixel is what a surface shows even at grazing angles (at 3 m and 80° of
 /// slant, 1 px spans 1 % of depth), while a discontinuity shows much more.
-pub fn depth_at_keypoint(
+pub fn depth_off_edges(
     depth: &impl Fn(usize, usize) -> Option<f64>,
     u: f64,
     v: f64,
@@ -68,7 +69,7 @@ pub fn depth_at_keypoint(
 }
 
 /// Extracts a keyframe's features: ORB keypoints and descriptors of `image`, each keypoint
-/// back-projected through `camera` at its depth (see [`depth_at_keypoint`]) where `depth`
+/// back-projected through `camera` at its depth (see [`depth_off_edges`]) where `depth`
 /// (metres at pixel `(u, v)`, `None` where unknown) has one. A monocular keyframe passes
 /// `|_, _| None` and gives its map points' depths as `depth_samples`.
 pub fn extract(
@@ -86,7 +87,7 @@ pub fn extract(
         .iter()
         .map(|kp| {
             let (u, v) = (kp.u as f64, kp.v as f64);
-            let d = depth_at_keypoint(&depth, u, v, config.depth_edge_ratio)?;
+            let d = depth_off_edges(&depth, u, v, config.depth_edge_ratio)?;
             camera.unproject_depth(&Vector2::new(u, v), d).ok()
         })
         .collect();
@@ -107,16 +108,16 @@ mod tests {
     fn depth_edges_are_rejected() {
         // A step from 1 m to 2 m between columns 9 and 10.
         let depth = |u: usize, v: usize| (u < 40 && v < 40).then_some(if u < 10 { 1.0 } else { 2.0 });
-        assert_eq!(depth_at_keypoint(&depth, 5.0, 5.0, 0.05), Some(1.0));
-        assert_eq!(depth_at_keypoint(&depth, 20.2, 5.4, 0.05), Some(2.0));
-        assert_eq!(depth_at_keypoint(&depth, 9.0, 5.0, 0.05), None);
-        assert_eq!(depth_at_keypoint(&depth, 10.0, 5.0, 0.05), None);
+        assert_eq!(depth_off_edges(&depth, 5.0, 5.0, 0.05), Some(1.0));
+        assert_eq!(depth_off_edges(&depth, 20.2, 5.4, 0.05), Some(2.0));
+        assert_eq!(depth_off_edges(&depth, 9.0, 5.0, 0.05), None);
+        assert_eq!(depth_off_edges(&depth, 10.0, 5.0, 0.05), None);
         // Invalid neighbours (outside) do not reject; an invalid centre does.
-        assert_eq!(depth_at_keypoint(&depth, 39.0, 39.0, 0.05), Some(2.0));
-        assert_eq!(depth_at_keypoint(&depth, 45.0, 5.0, 0.05), None);
-        assert_eq!(depth_at_keypoint(&depth, f64::NAN, 5.0, 0.05), None);
+        assert_eq!(depth_off_edges(&depth, 39.0, 39.0, 0.05), Some(2.0));
+        assert_eq!(depth_off_edges(&depth, 45.0, 5.0, 0.05), None);
+        assert_eq!(depth_off_edges(&depth, f64::NAN, 5.0, 0.05), None);
         // A slanted plane (1 % per pixel) passes.
         let slant = |u: usize, _v: usize| Some(2.0 * (1.0 + 0.01 * u as f64));
-        assert!(depth_at_keypoint(&slant, 30.0, 3.0, 0.05).is_some());
+        assert!(depth_off_edges(&slant, 30.0, 3.0, 0.05).is_some());
     }
 }

@@ -104,7 +104,7 @@ pub struct PlaceRecognitionConfig {
     /// The feature extractor.
     pub orb: OrbConfig,
     /// A keypoint's depth is used only if its 3×3 neighbourhood's depths lie within this
-    /// relative spread (0.05; see [`features::depth_at_keypoint`]).
+    /// relative spread (0.05; see [`features::depth_off_edges`]).
     pub depth_edge_ratio: f64,
     /// No detection when the query's best score against its neighbours is below this
     /// (0.005: DLoopDetector's `min_nss_factor`; the normalisation is meaningless then).
