@@ -160,8 +160,8 @@ impl Accumulator {
         self.position += x * weight as f64;
         self.samples += weight;
         if let Some(c) = colour {
-            for k in 0..3 {
-                self.colour[k] += c[k];
+            for (sum, x) in self.colour.iter_mut().zip(c) {
+                *sum += x;
             }
             self.coloured += coloured;
         }
@@ -170,7 +170,8 @@ impl Accumulator {
     fn mean_colour(&self) -> Option<[u8; 3]> {
         (self.coloured > 0).then(|| {
             let n = self.coloured as f64;
-            self.colour.map(|c| (c as f64 / n).round().clamp(0.0, 255.0) as u8)
+            self.colour
+                .map(|c| (c as f64 / n).round().clamp(0.0, 255.0) as u8)
         })
     }
 }
@@ -419,7 +420,13 @@ mod tests {
         for (k, pose) in poses().iter().enumerate() {
             let d = plane_depth(pose, plane, 0.001, k as u64, k == 1);
             let cloud = KeyframeCloud::from_depth(
-                |u, v| if u < 640 && v < 480 { d[v * 640 + u] } else { None },
+                |u, v| {
+                    if u < 640 && v < 480 {
+                        d[v * 640 + u]
+                    } else {
+                        None
+                    }
+                },
                 (640, 480),
                 Colour::None,
                 &camera(),
@@ -462,14 +469,37 @@ mod tests {
         assert!((c.voxel_size - 0.0171).abs() < 1e-6);
         assert_eq!(c.stride_for(&camera()), 2);
         assert!((c.max_depth() - 3.464).abs() < 1e-3);
-        assert!(DenseModelConfig { voxel_size: 0.0, ..c.clone() }.validate().is_err());
-        assert!(DenseModelConfig { min_views: 0, ..c.clone() }.validate().is_err());
+        assert!(
+            DenseModelConfig {
+                voxel_size: 0.0,
+                ..c.clone()
+            }
+            .validate()
+            .is_err()
+        );
+        assert!(
+            DenseModelConfig {
+                min_views: 0,
+                ..c.clone()
+            }
+            .validate()
+            .is_err()
+        );
         let yaml: DenseModelConfig = serde_saphyr::from_str("voxel_size: 0.05\n").unwrap();
         assert_eq!((yaml.voxel_size, yaml.min_views), (0.05, 2));
         // Two views of one point with colours 100 and 200: the mean, 150.
-        let planes = |x: u8| [GrayImage::filled(8, 8, x), GrayImage::filled(8, 8, x), GrayImage::filled(8, 8, 0)];
+        let planes = |x: u8| {
+            [
+                GrayImage::filled(8, 8, x),
+                GrayImage::filled(8, 8, x),
+                GrayImage::filled(8, 8, 0),
+            ]
+        };
         let (a, b) = (planes(100), planes(200));
-        let config = DenseModelConfig { stride: Some(8), ..c };
+        let config = DenseModelConfig {
+            stride: Some(8),
+            ..c
+        };
         let mut m = DenseModel::new(config.clone()).unwrap();
         for p in [&a, &b] {
             let cloud = KeyframeCloud::from_depth(

@@ -8,5 +8,5 @@
 //! recognition, and the threads of thesis §6.5.2. It knows no simulator.
 
 #![warn(missing_docs)]
-pub mod place_recognition;
 pub mod dense_model;
+pub mod place_recognition;

@@ -142,6 +142,9 @@ fn fused_cloud_lies_on_held_out_depth_surfaces() {
     // "Within a few cm": the median within 2 cm (the ground truth's own consistency is
     // 6–15 mm), and no farther than the raw data's.
     assert!(fused_median < 0.02, "median {fused_median} m");
-    assert!(fused_median <= raw_median * 1.05, "{fused_median} vs raw {raw_median}");
+    assert!(
+        fused_median <= raw_median * 1.05,
+        "{fused_median} vs raw {raw_median}"
+    );
     assert_eq!(coloured, points.len());
 }

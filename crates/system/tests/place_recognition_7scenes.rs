@@ -44,8 +44,11 @@ const IMPRECISE_TRANSLATION: f64 = 0.10;
 const IMPRECISE_ROTATION_DEG: f64 = 5.0;
 
 /// The revisit clusters: (earlier frames, later frames).
-const CLUSTERS: [((usize, usize), (usize, usize)); 3] =
-    [((136, 205), (616, 680)), ((218, 300), (945, 999)), ((0, 59), (940, 999))];
+const CLUSTERS: [((usize, usize), (usize, usize)); 3] = [
+    ((136, 205), (616, 680)),
+    ((218, 300), (945, 999)),
+    ((0, 59), (940, 999)),
+];
 
 fn optical_axis_angle_deg(a: &Se3, b: &Se3) -> f64 {
     let za = a.rotation().rotation_matrix().column(2).into_owned();
@@ -90,7 +93,9 @@ impl Truth {
             .iter()
             .filter(|x| {
                 let xc = camera_from_world.act(x);
-                let Ok(p) = camera.project(&xc) else { return false };
+                let Ok(p) = camera.project(&xc) else {
+                    return false;
+                };
                 if p.x < 0.0 || p.y < 0.0 || p.x >= size.0 as f64 || p.y >= size.1 as f64 {
                     return false;
                 }
@@ -216,9 +221,10 @@ fn evaluate(step: usize, verbose: bool) -> Option<Evaluation> {
                 .enumerate()
                 .filter(|(_, f)| f.abs_diff(qf) > EXCLUDED_FRAMES)
         };
-        let has_partner = outside().any(|(k, _)| q.overlap(&truth[k], &camera, size) >= MIN_OVERLAP);
-        let has_near_partner = outside()
-            .any(|(k, _)| near_in_pose(&q.world_from_camera, &truth[k].world_from_camera));
+        let has_partner =
+            outside().any(|(k, _)| q.overlap(&truth[k], &camera, size) >= MIN_OVERLAP);
+        let has_near_partner =
+            outside().any(|(k, _)| near_in_pose(&q.world_from_camera, &truth[k].world_from_camera));
         e.queries_with_partner += has_partner as usize;
         e.queries_with_near_partner += has_near_partner as usize;
         let t = Instant::now();
@@ -245,13 +251,14 @@ fn evaluate(step: usize, verbose: bool) -> Option<Evaluation> {
                         }
                     };
                     let o = q.overlap(&truth[h.old.index()], &camera, size);
-                    format!("{}({o:.2}):{:.2}:{v}", frames[h.old.index()], h.normalised_score)
+                    format!(
+                        "{}({o:.2}):{:.2}:{v}",
+                        frames[h.old.index()],
+                        h.normalised_score
+                    )
                 })
                 .collect();
-            eprintln!(
-                "query {qf:4} partner {has_partner:5}: {}",
-                hyps.join("  ")
-            );
+            eprintln!("query {qf:4} partner {has_partner:5}: {}", hyps.join("  "));
         }
         let Some(c) = report.candidate else { continue };
         let oi = c.old.index();
@@ -261,7 +268,10 @@ fn evaluate(step: usize, verbose: bool) -> Option<Evaluation> {
         // Ground-truth query_from_old = (world_from_query)⁻¹ · world_from_old.
         let gt = q.world_from_camera.inverse().compose(&o.world_from_camera);
         let err = c.query_from_old.rigid_part().compose(&gt.inverse());
-        let (dt, dr) = (err.translation().norm(), err.rotation().angle().to_degrees());
+        let (dt, dr) = (
+            err.translation().norm(),
+            err.rotation().angle().to_degrees(),
+        );
         e.translation_errors.push(dt);
         e.rotation_errors_deg.push(dr);
         let overlap = q.overlap(o, &camera, size);
@@ -305,7 +315,11 @@ fn evaluate(step: usize, verbose: bool) -> Option<Evaluation> {
 fn median(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
-    if s.is_empty() { f64::NAN } else { s[s.len() / 2] }
+    if s.is_empty() {
+        f64::NAN
+    } else {
+        s[s.len() / 2]
+    }
 }
 
 fn report(e: &Evaluation) {
@@ -350,9 +364,17 @@ fn report(e: &Evaluation) {
 }
 
 fn check(e: &Evaluation) {
-    assert!(e.false_loops.is_empty(), "false loops accepted: {:?}", e.false_loops);
+    assert!(
+        e.false_loops.is_empty(),
+        "false loops accepted: {:?}",
+        e.false_loops
+    );
     for (k, n) in e.cluster_loops.iter().enumerate() {
-        assert!(*n >= 1, "no loop accepted in revisit cluster {:?}", CLUSTERS[k]);
+        assert!(
+            *n >= 1,
+            "no loop accepted in revisit cluster {:?}",
+            CLUSTERS[k]
+        );
     }
     // Accuracy: most loops are precise despite the uncalibrated colour camera.
     assert!(median(&e.translation_errors) <= IMPRECISE_TRANSLATION);
@@ -406,16 +428,27 @@ fn monocular_loop(drift: f64) -> Option<(system::place_recognition::LoopCandidat
     let camera = *seq.info().camera.pinhole();
     let mut pr = PlaceRecognition::new(Arc::clone(&voc.vocabulary), config).unwrap();
     let mut poses = Vec::new();
-    for (k, (index, scale)) in [(930usize, 1.0), (950, 1.0), (280, drift)].into_iter().enumerate() {
+    for (k, (index, scale)) in [(930usize, 1.0), (950, 1.0), (280, drift)]
+        .into_iter()
+        .enumerate()
+    {
         let frame = seq.read(index).unwrap().unwrap();
-        let FrameImages::Rgbd { image, depth: Some(depth), .. } = &frame.images else {
+        let FrameImages::Rgbd {
+            image,
+            depth: Some(depth),
+            ..
+        } = &frame.images
+        else {
             panic!("frame {index} has no depth");
         };
         let samples: Vec<(Vector2<f64>, f64)> = (12..480)
             .step_by(24)
             .flat_map(|v| (12..640).step_by(24).map(move |u| (u, v)))
             .filter_map(|(u, v)| {
-                Some((Vector2::new(u as f64, v as f64), scale * depth.metres_at(u, v)?))
+                Some((
+                    Vector2::new(u as f64, v as f64),
+                    scale * depth.metres_at(u, v)?,
+                ))
             })
             .collect();
         pr.add_monocular_keyframe(KeyframeId::from_index(k), image, samples, &camera)
@@ -439,7 +472,9 @@ fn monocular_loop(drift: f64) -> Option<(system::place_recognition::LoopCandidat
 /// moves the translation by that much times the distance of the scene the points lie on).
 #[test]
 fn monocular_loop_recovers_the_scale_drift() {
-    let Some((free, gt)) = monocular_loop(1.0) else { return };
+    let Some((free, gt)) = monocular_loop(1.0) else {
+        return;
+    };
     let drift = 1.5;
     let (c, _) = monocular_loop(drift).unwrap();
     let s = c.query_from_old.scale();

@@ -79,10 +79,8 @@ pub fn extract(
     camera: &PinholeCamera,
     config: &PlaceRecognitionConfig,
 ) -> Result<KeyframeFeatures, PlaceRecognitionError> {
-    let (keypoints, descriptors) =
-        detect_and_describe(image, &config.orb.params()).map_err(|e| {
-            PlaceRecognitionError::Image(e.to_string())
-        })?;
+    let (keypoints, descriptors) = detect_and_describe(image, &config.orb.params())
+        .map_err(|e| PlaceRecognitionError::Image(e.to_string()))?;
     let points = keypoints
         .iter()
         .map(|kp| {
@@ -107,7 +105,8 @@ mod tests {
     #[test]
     fn depth_edges_are_rejected() {
         // A step from 1 m to 2 m between columns 9 and 10.
-        let depth = |u: usize, v: usize| (u < 40 && v < 40).then_some(if u < 10 { 1.0 } else { 2.0 });
+        let depth =
+            |u: usize, v: usize| (u < 40 && v < 40).then_some(if u < 10 { 1.0 } else { 2.0 });
         assert_eq!(depth_off_edges(&depth, 5.0, 5.0, 0.05), Some(1.0));
         assert_eq!(depth_off_edges(&depth, 20.2, 5.4, 0.05), Some(2.0));
         assert_eq!(depth_off_edges(&depth, 9.0, 5.0, 0.05), None);

@@ -188,9 +188,8 @@ impl PlaceRecognitionConfig {
 
     /// Checks every value's range; the message names the field.
     pub fn validate(&self) -> Result<(), PlaceRecognitionError> {
-        let bad = |field: &str, why: &str| {
-            Err(PlaceRecognitionError::Config(format!("{field}: {why}")))
-        };
+        let bad =
+            |field: &str, why: &str| Err(PlaceRecognitionError::Config(format!("{field}: {why}")));
         let positive = |x: f64| x.is_finite() && x > 0.0;
         let probability = |x: f64| x > 0.0 && x < 1.0;
         if self.orb.features == 0 || self.orb.levels == 0 {
@@ -218,7 +217,10 @@ impl PlaceRecognitionConfig {
             return bad("pixel_sigma, depth_noise", "must be positive");
         }
         if !probability(self.inlier_probability) || !probability(self.ransac_confidence) {
-            return bad("inlier_probability, ransac_confidence", "must lie in (0, 1)");
+            return bad(
+                "inlier_probability, ransac_confidence",
+                "must lie in (0, 1)",
+            );
         }
         if self.ransac_max_iterations == 0 {
             return bad("ransac_max_iterations", "must be positive");
@@ -456,7 +458,11 @@ impl PlaceRecognition {
         let normaliser = excluded
             .iter()
             .filter(|&&k| k != query)
-            .filter_map(|k| self.keyframes.get(k).map(|e| (*k, score_l1(&q.bow, &e.bow))))
+            .filter_map(|k| {
+                self.keyframes
+                    .get(k)
+                    .map(|e| (*k, score_l1(&q.bow, &e.bow)))
+            })
             .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
             .filter(|(_, s)| *s >= self.config.min_normaliser && *s > 0.0);
         let Some((_, eta)) = normaliser else {
@@ -517,6 +523,14 @@ impl PlaceRecognition {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The loop-closure thread owns the database; the vocabulary is shared.
+    #[test]
+    fn the_database_can_move_to_another_thread() {
+        fn send_sync<T: Send + Sync>() {}
+        send_sync::<PlaceRecognition>();
+        send_sync::<LoopCandidate>();
+    }
 
     #[test]
     fn config_deserialises_with_defaults_and_rejects_unknown_fields() {

@@ -112,7 +112,8 @@ pub fn refine_rigid(
                 continue;
             };
             let mut a = nalgebra::Matrix3x6::<f64>::zeros();
-            a.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
+            a.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&Matrix3::identity());
             a.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-lie::skew(&p)));
             let aw = a.transpose() * w;
             h += aw * a;
@@ -242,8 +243,11 @@ fn verify_rigid(
     (old_id, old): (u32, &KeyframeFeatures),
     config: &PlaceRecognitionConfig,
 ) -> Verification {
-    let with_depth =
-        |f: &KeyframeFeatures| -> Vec<usize> { (0..f.points.len()).filter(|&i| f.points[i].is_some()).collect() };
+    let with_depth = |f: &KeyframeFeatures| -> Vec<usize> {
+        (0..f.points.len())
+            .filter(|&i| f.points[i].is_some())
+            .collect()
+    };
     let matches = match_subsets(query, &with_depth(query), old, &with_depth(old), config);
     if matches.len() < config.min_inliers.max(3) {
         return Verification::TooFewMatches {
@@ -258,8 +262,14 @@ fn verify_rigid(
             config,
         )
     };
-    let target: Vec<_> = matches.iter().map(|m| query.points[m.query].unwrap_or_default()).collect();
-    let source: Vec<_> = matches.iter().map(|m| old.points[m.train].unwrap_or_default()).collect();
+    let target: Vec<_> = matches
+        .iter()
+        .map(|m| query.points[m.query].unwrap_or_default())
+        .collect();
+    let source: Vec<_> = matches
+        .iter()
+        .map(|m| old.points[m.train].unwrap_or_default())
+        .collect();
     let target_cov: Vec<_> = matches.iter().map(|m| cov(query, m.query)).collect();
     let source_cov: Vec<_> = matches.iter().map(|m| cov(old, m.train)).collect();
     let gate = config.inlier_gate();
@@ -298,7 +308,12 @@ fn verify_rigid(
         pairs = guided_matches(query, old, &pose, pairs, config);
         let t: Vec<_> = pairs
             .iter()
-            .map(|m| (query.points[m.query].unwrap_or_default(), cov(query, m.query)))
+            .map(|m| {
+                (
+                    query.points[m.query].unwrap_or_default(),
+                    cov(query, m.query),
+                )
+            })
             .collect();
         let s: Vec<_> = pairs
             .iter()
@@ -383,8 +398,11 @@ fn guided_matches(
                 config,
             );
             let cov_o = point_covariance(x_o, kp_o.scale as f64, focal(old), config);
-            if mahalanobis(pose, (&query.points[q].unwrap_or_default(), &cov_q), (x_o, &cov_o))
-                <= gate
+            if mahalanobis(
+                pose,
+                (&query.points[q].unwrap_or_default(), &cov_q),
+                (x_o, &cov_o),
+            ) <= gate
             {
                 query_used[q] = true;
                 old_used[o] = true;
@@ -423,7 +441,10 @@ fn verify_similarity(
                 Vector2::new(kp.u as f64, kp.v as f64)
             })
             .collect(),
-        depths: matches.iter().map(|m| f.points[index(m)].map(|p| p.z)).collect(),
+        depths: matches
+            .iter()
+            .map(|m| f.points[index(m)].map(|p| p.z))
+            .collect(),
         samples: f.depth_samples.clone(),
     };
     let old_view = view(old, &|m| m.train);
@@ -440,7 +461,11 @@ fn verify_similarity(
         Ok(c) => Verification::Accepted {
             query_from_old: c.old_from_current.inverse(),
             ransac_inliers: c.inliers.len(),
-            inliers: c.inliers.iter().map(|&i| loop_match(query, old, &matches[i])).collect(),
+            inliers: c
+                .inliers
+                .iter()
+                .map(|&i| loop_match(query, old, &matches[i]))
+                .collect(),
         },
         Err(slam::loop_closure::LoopClosureError::TooFewInliers { inliers, .. }) => {
             Verification::TooFewInliers {
@@ -545,7 +570,10 @@ mod tests {
                 found_true as f64 >= 0.95 * true_inliers as f64,
                 "trial {trial}: {found_true}/{true_inliers}"
             );
-            assert!(found_false <= 3, "trial {trial}: {found_false} outliers accepted");
+            assert!(
+                found_false <= 3,
+                "trial {trial}: {found_false} outliers accepted"
+            );
             // The iteration count follows the inlier ratio (p = 0.999, s = 3).
             let w = r.inliers.len() as f64 / n as f64;
             assert!(
@@ -562,7 +590,10 @@ mod tests {
     fn weighted_refinement_beats_the_unweighted_fit() {
         let config = PlaceRecognitionConfig::default();
         let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let truth = Se3::new(So3::exp(&Vector3::new(0.2, 0.3, -0.1)), Vector3::new(0.2, 0.0, -0.3));
+        let truth = Se3::new(
+            So3::exp(&Vector3::new(0.2, 0.3, -0.1)),
+            Vector3::new(0.2, 0.0, -0.3),
+        );
         let (mut arun_total, mut refined_total) = (0.0, 0.0);
         for trial in 0..20 {
             let mut target = Vec::new();
@@ -583,7 +614,11 @@ mod tests {
                         let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
                         (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
                     });
-                    if trial == 0 { *x } else { x + c.cholesky().unwrap().l() * g }
+                    if trial == 0 {
+                        *x
+                    } else {
+                        x + c.cholesky().unwrap().l() * g
+                    }
                 };
                 source.push((sample(&x_o, &c_o, &mut rng), c_o));
                 target.push((sample(&x_q, &c_q, &mut rng), c_q));
@@ -600,7 +635,10 @@ mod tests {
             arun_total += err(&arun);
             refined_total += err(&refined);
         }
-        assert!(refined_total < 0.8 * arun_total, "{refined_total} vs {arun_total}");
+        assert!(
+            refined_total < 0.8 * arun_total,
+            "{refined_total} vs {arun_total}"
+        );
     }
 
     #[test]
@@ -614,7 +652,10 @@ mod tests {
         let dz = Vector3::new(0.0, 0.0, 0.02);
         let e_near = mahalanobis(&identity, (&(near + dz), &c(&near)), (&near, &c(&near)));
         let e_far = mahalanobis(&identity, (&(far + dz), &c(&far)), (&far, &c(&far)));
-        assert!(e_near > config.inlier_gate() && e_far < config.inlier_gate(), "{e_near} {e_far}");
+        assert!(
+            e_near > config.inlier_gate() && e_far < config.inlier_gate(),
+            "{e_near} {e_far}"
+        );
         // Lateral errors are measured against the (smaller) lateral σ.
         let dx = Vector3::new(0.02, 0.0, 0.0);
         let e_lat = mahalanobis(&identity, (&(far + dx), &c(&far)), (&far, &c(&far)));

@@ -121,7 +121,9 @@ pub enum VocabularyError {
 pub fn tree_shape(descriptors: usize) -> (usize, usize) {
     let words = (descriptors / DESCRIPTORS_PER_WORD).max(2);
     let fits = |k: usize, levels: usize| {
-        (0..levels).try_fold(1usize, |acc, _| acc.checked_mul(k)).is_none_or(|n| n >= words)
+        (0..levels)
+            .try_fold(1usize, |acc, _| acc.checked_mul(k))
+            .is_none_or(|n| n >= words)
     };
     let levels = (1..).find(|&l| fits(MAX_BRANCHING, l)).unwrap_or(1);
     let k = (2..=MAX_BRANCHING)
@@ -160,13 +162,11 @@ pub fn collect_images(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, VocabularyErro
 }
 
 fn is_image(path: &Path) -> bool {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| {
-            ["png", "jpg", "jpeg", "pgm", "ppm", "pnm"]
-                .iter()
-                .any(|x| e.eq_ignore_ascii_case(x))
-        })
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+        ["png", "jpg", "jpeg", "pgm", "ppm", "pnm"]
+            .iter()
+            .any(|x| e.eq_ignore_ascii_case(x))
+    })
 }
 
 fn list_images(dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), VocabularyError> {
@@ -369,8 +369,13 @@ pub fn train(
     }
     let (k, levels) = set.params.shape.unwrap_or_else(|| tree_shape(n));
     let t1 = Instant::now();
-    let vocabulary =
-        Vocabulary::train(&descriptors, k, levels, set.params.iterations, set.params.seed)?;
+    let vocabulary = Vocabulary::train(
+        &descriptors,
+        k,
+        levels,
+        set.params.iterations,
+        set.params.seed,
+    )?;
     Ok(Trained {
         vocabulary,
         descriptors: n,
@@ -444,7 +449,11 @@ pub fn save(vocabulary: &Vocabulary, path: &Path) -> Result<(), VocabularyError>
 /// Where trained default vocabularies are cached: `$XDG_CACHE_HOME/dwslam`, else
 /// `$HOME/.cache/dwslam` (never inside the repository); `None` without either variable.
 pub fn cache_dir() -> Option<PathBuf> {
-    let nonempty = |v: &str| std::env::var_os(v).filter(|s| !s.is_empty()).map(PathBuf::from);
+    let nonempty = |v: &str| {
+        std::env::var_os(v)
+            .filter(|s| !s.is_empty())
+            .map(PathBuf::from)
+    };
     nonempty("XDG_CACHE_HOME")
         .or_else(|| nonempty("HOME").map(|h| h.join(".cache")))
         .map(|d| d.join("dwslam"))
@@ -565,7 +574,10 @@ mod tests {
         for n in [50, 999, 12_345, 77_777] {
             let (k, l) = tree_shape(n);
             let w = (n / DESCRIPTORS_PER_WORD).max(2);
-            assert!(k.pow(l as u32) >= w && (k - 1).pow(l as u32) < w, "{n}: {k} {l}");
+            assert!(
+                k.pow(l as u32) >= w && (k - 1).pow(l as u32) < w,
+                "{n}: {k} {l}"
+            );
             assert!(MAX_BRANCHING.pow(l as u32 - 1) < w);
         }
     }
@@ -607,26 +619,38 @@ mod tests {
     /// corrupt cache trained over.
     #[test]
     fn default_vocabulary_trains_reproducibly_and_is_cached() {
-        let Some(root) = data::paths::require("slambook2_sample_images").and_then(|_| {
-            data::paths::dataset_root()
-        }) else {
+        let Some(root) = data::paths::require("slambook2_sample_images")
+            .and_then(|_| data::paths::dataset_root())
+        else {
             return;
         };
         let orb = crate::place_recognition::OrbConfig::default().params();
-        let set = TrainingSet::read(&default_training_images(&root).unwrap(), TrainingParams::new(orb))
-            .unwrap();
+        let set = TrainingSet::read(
+            &default_training_images(&root).unwrap(),
+            TrainingParams::new(orb),
+        )
+        .unwrap();
         assert_eq!((set.images.len(), set.duplicates.len()), (22, 1));
         assert!(set.duplicates[0].ends_with("rgbd_pair/1.png"));
         let a = train(&set, &|_, _| {}).unwrap();
         let b = train(&set, &|_, _| {}).unwrap();
         assert_eq!(a.vocabulary, b.vocabulary);
-        assert_eq!((a.vocabulary.k, a.vocabulary.levels), tree_shape(a.descriptors));
+        assert_eq!(
+            (a.vocabulary.k, a.vocabulary.levels),
+            tree_shape(a.descriptors)
+        );
         let per_word = a.descriptors as f64 / a.vocabulary.num_words() as f64;
-        assert!((5.0..20.0).contains(&per_word), "{per_word} descriptors per word");
+        assert!(
+            (5.0..20.0).contains(&per_word),
+            "{per_word} descriptors per word"
+        );
         let cache = std::env::temp_dir().join(format!("dwslam-voccache-{}", std::process::id()));
         let load = || load_vocabulary_cached(None, Some(&root), &orb, Some(&cache)).unwrap();
         let first = load();
-        let VocabularyOrigin::Trained { cached: Ok(path), .. } = &first.origin else {
+        let VocabularyOrigin::Trained {
+            cached: Ok(path), ..
+        } = &first.origin
+        else {
             panic!("{:?}", first.origin);
         };
         assert_eq!(*first.vocabulary, a.vocabulary);
@@ -634,7 +658,10 @@ mod tests {
         assert_eq!(second.origin, VocabularyOrigin::Cache(path.clone()));
         assert_eq!(*second.vocabulary, a.vocabulary);
         std::fs::write(path, "vocabulary: {k: 2").unwrap();
-        assert!(matches!(load().origin, VocabularyOrigin::Trained { cached: Ok(_), .. }));
+        assert!(matches!(
+            load().origin,
+            VocabularyOrigin::Trained { cached: Ok(_), .. }
+        ));
         assert_eq!(load().origin, VocabularyOrigin::Cache(path.clone()));
         std::fs::remove_dir_all(&cache).unwrap();
     }
@@ -653,21 +680,14 @@ mod tests {
         write_pgm(&dir.join("a.pgm"), &img);
         write_pgm(&dir.join("sub/b.pgm"), &img);
         std::fs::write(dir.join("notes.txt"), "x").unwrap();
-        let images = collect_images(&[dir.clone()]).unwrap();
+        let images = collect_images(std::slice::from_ref(&dir)).unwrap();
         assert_eq!(images, vec![dir.join("a.pgm"), dir.join("sub/b.pgm")]);
         let params = TrainingParams::new(OrbParams::default());
         let set = TrainingSet::read(&images, params).unwrap();
         assert_eq!(set.images.len(), 1);
         assert_eq!(set.duplicates, vec![dir.join("sub/b.pgm")]);
         // The key follows the parameters.
-        let other = TrainingSet::read(
-            &images,
-            TrainingParams {
-                seed: 1,
-                ..params
-            },
-        )
-        .unwrap();
+        let other = TrainingSet::read(&images, TrainingParams { seed: 1, ..params }).unwrap();
         assert_ne!(set.key, other.key);
         let missing = collect_images(&[dir.join("nope")]).unwrap_err().to_string();
         assert!(missing.contains("nope"), "{missing}");
