@@ -50,6 +50,23 @@ const CLUSTERS: [((usize, usize), (usize, usize)); 3] = [
     ((0, 59), (940, 999)),
 ];
 
+/// A 7-Scenes frame with depth: its grey image, depth image and ground-truth pose.
+fn read_rgbd(
+    seq: &Sequence,
+    index: usize,
+) -> (vision::image::GrayImage, data::sequence::DepthImage, Se3) {
+    let frame = seq.read(index).unwrap().unwrap();
+    let world_from_camera = frame.world_from_camera.expect("7-Scenes has ground truth");
+    match frame.images {
+        FrameImages::Rgbd {
+            image,
+            depth: Some(depth),
+            ..
+        } => (image, depth, world_from_camera),
+        _ => panic!("frame {index} has no depth image"),
+    }
+}
+
 fn optical_axis_angle_deg(a: &Se3, b: &Se3) -> f64 {
     let za = a.rotation().rotation_matrix().column(2).into_owned();
     let zb = b.rotation().rotation_matrix().column(2).into_owned();
@@ -148,21 +165,12 @@ fn evaluate(step: usize, verbose: bool) -> Option<Evaluation> {
     let mut frames = Vec::new();
     let mut seconds_add = 0.0;
     for index in (0..seq.len()).step_by(step) {
-        let frame = seq.read(index).unwrap().unwrap();
-        let FrameImages::Rgbd {
-            image,
-            depth: Some(depth),
-            ..
-        } = &frame.images
-        else {
-            panic!("frame {index} has no depth image");
-        };
+        let (image, depth, world_from_camera) = read_rgbd(&seq, index);
         let id = KeyframeId::from_index(frames.len());
         let t = Instant::now();
-        pr.add_keyframe(id, image, |u, v| depth.metres_at(u, v), &camera)
+        pr.add_keyframe(id, &image, |u, v| depth.metres_at(u, v), &camera)
             .unwrap();
         seconds_add += t.elapsed().as_secs_f64();
-        let world_from_camera = frame.world_from_camera.expect("7-Scenes has ground truth");
         let surface = (0..size.1)
             .step_by(16)
             .flat_map(|v| (0..size.0).step_by(16).map(move |u| (u, v)))
@@ -432,15 +440,7 @@ fn monocular_loop(drift: f64) -> Option<(system::place_recognition::LoopCandidat
         .into_iter()
         .enumerate()
     {
-        let frame = seq.read(index).unwrap().unwrap();
-        let FrameImages::Rgbd {
-            image,
-            depth: Some(depth),
-            ..
-        } = &frame.images
-        else {
-            panic!("frame {index} has no depth");
-        };
+        let (image, depth, world_from_camera) = read_rgbd(&seq, index);
         let samples: Vec<(Vector2<f64>, f64)> = (12..480)
             .step_by(24)
             .flat_map(|v| (12..640).step_by(24).map(move |u| (u, v)))
@@ -451,9 +451,9 @@ fn monocular_loop(drift: f64) -> Option<(system::place_recognition::LoopCandidat
                 ))
             })
             .collect();
-        pr.add_monocular_keyframe(KeyframeId::from_index(k), image, samples, &camera)
+        pr.add_monocular_keyframe(KeyframeId::from_index(k), &image, samples, &camera)
             .unwrap();
-        poses.push(frame.world_from_camera.unwrap());
+        poses.push(world_from_camera);
     }
     // The query (280) excludes itself and 950, which normalises its scores.
     let excluded: BTreeSet<KeyframeId> = [KeyframeId(1), KeyframeId(2)].into();
