@@ -11,6 +11,7 @@ mod experiment;
 mod inspect;
 mod pgo;
 mod plot;
+mod run;
 mod vocabulary;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
@@ -35,6 +36,9 @@ enum Command {
     /// Look at what the visual front-end sees (corners, disparity, flow, tracks, matches).
     #[command(subcommand)]
     Inspect(inspect::InspectCommand),
+    /// The live SLAM system on a recorded stereo or RGB-D sequence: every frame's pose, the
+    /// keyframes and the map, with a report (and ATE/RPE when the sequence has ground truth).
+    Run(run::RunArgs),
     /// Train the bag-of-words vocabulary of place recognition (DBoW2 YAML).
     Vocabulary(vocabulary::VocabularyArgs),
     /// The demo: double window optimisation on the simulated monocular double loop (thesis
@@ -61,6 +65,7 @@ fn run(command: Command) -> Result<()> {
         Command::Pgo(args) => pgo::run(args),
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),
+        Command::Run(args) => run::run(args),
         Command::Vocabulary(args) => vocabulary::run(args),
         Command::Demo => experiment::dwo::run(experiment::dwo::DwoArgs::demo()),
     }

@@ -191,6 +191,9 @@ pub struct RunRecord {
     pub timings: StageTimings,
     /// `true` when the run was stopped before the end of the sequence.
     pub interrupted: bool,
+    /// Further sections of the summary (the run's evaluation, loop closures, …), written as
+    /// top-level keys of `summary.json`.
+    pub extra: serde_json::Map<String, serde_json::Value>,
 }
 
 /// Counts of tracking states.
@@ -241,6 +244,9 @@ pub struct Summary {
     pub timings: Vec<StageTiming>,
     /// Every frame's state.
     pub frame_states: Vec<FrameState>,
+    /// Further sections ([`RunRecord::extra`]).
+    #[serde(flatten)]
+    pub extra: serde_json::Map<String, serde_json::Value>,
 }
 
 impl RunRecord {
@@ -299,6 +305,7 @@ impl RunRecord {
                     state: f.state.clone(),
                 })
                 .collect(),
+            extra: self.extra.clone(),
         }
     }
 }

@@ -8,5 +8,13 @@
 //! recognition, and the threads of thesis §6.5.2. It knows no simulator.
 
 #![warn(missing_docs)]
+
+pub mod association;
+pub mod config;
 pub mod dense_model;
+pub mod frame;
+pub mod keyframes;
+pub mod live;
 pub mod place_recognition;
+pub mod search;
+pub mod tracker;

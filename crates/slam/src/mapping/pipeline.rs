@@ -76,6 +76,8 @@ pub struct KeyframeReport {
     pub new_points: usize,
     /// Time of the stages before the optimisation (with the front-end's association).
     pub time_frontend: Duration,
+    /// Time of each stage (with the front-end's association for it), in order.
+    pub stage_times: Vec<(&'static str, Duration)>,
     /// The optimisation (none for the first keyframe).
     pub optimisation: Option<DwoStats>,
 }
@@ -98,13 +100,39 @@ impl<C: InverseDepthCamera<N>, const N: usize> KeyframePipeline<C, N> {
     }
 
     /// One keyframe through every stage: track, insert, appearance loop, metric loop, new
-    /// points, and (from the second keyframe on) double window optimisation.
+    /// points ([`Mapper::map_keyframe`]), and (from the second keyframe on) double window
+    /// optimisation.
     pub fn process_keyframe(
         &mut self,
         graph: &mut SlamGraph<N>,
         front_end: &mut impl FrontEnd<N>,
     ) -> Result<KeyframeReport, MappingError> {
+        let mut report = self.mapper.map_keyframe(graph, front_end)?;
+        // A window needs two keyframes: alone, the first one's points have nothing to be
+        // adjusted against.
+        if graph.num_keyframes() >= 2 {
+            report.optimisation = Some(self.optimiser.optimise(graph, self.mapper.camera())?);
+        }
+        Ok(report)
+    }
+}
+
+impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
+    /// Every stage of the keyframe pipeline but the optimisation, in order: track, insert,
+    /// appearance loop, metric loop, new points ([`KeyframePipeline::process_keyframe`] adds
+    /// the optimisation; the live system's optimiser runs in its own thread).
+    pub fn map_keyframe(
+        &mut self,
+        graph: &mut SlamGraph<N>,
+        front_end: &mut impl FrontEnd<N>,
+    ) -> Result<KeyframeReport, MappingError> {
         let start = Instant::now();
+        let mut stage_times = Vec::with_capacity(5);
+        let mut lap = Instant::now();
+        let mut stage = |name: &'static str, times: &mut Vec<(&'static str, Duration)>| {
+            times.push((name, lap.elapsed()));
+            lap = Instant::now();
+        };
         let candidates = graph
             .reference()
             .map(|r| tracking_candidates(graph, r))
@@ -112,34 +140,32 @@ impl<C: InverseDepthCamera<N>, const N: usize> KeyframePipeline<C, N> {
         let matches = front_end.match_candidates(graph, &candidates);
         let given = front_end.given_pose(graph, &matches);
         let tracked = matches.len();
-        let frame = self.mapper.track(graph, matches, given)?;
-        let (keyframe, _) = self.mapper.insert_keyframe(graph, frame)?;
+        let frame = self.track(graph, matches, given)?;
+        stage("keyframe: track", &mut stage_times);
+        let (keyframe, _) = self.insert_keyframe(graph, frame)?;
+        stage("keyframe: insert and register", &mut stage_times);
         let appearance_loop = match front_end.recognise_place(graph, keyframe) {
-            Some(place) => self.mapper.close_appearance_loop(graph, keyframe, &place)?,
+            Some(place) => self.close_appearance_loop(graph, keyframe, &place)?,
             None => None,
         };
-        let predictions = self.mapper.loop_predictions(graph, keyframe)?;
+        stage("keyframe: appearance loop", &mut stage_times);
+        let predictions = self.loop_predictions(graph, keyframe)?;
         let found = front_end.guided_search(graph, keyframe, &predictions);
-        let metric_loops = self.mapper.close_metric_loops(graph, keyframe, &found)?;
+        let metric_loops = self.close_metric_loops(graph, keyframe, &found)?;
+        stage("keyframe: metric loop", &mut stage_times);
         let measurements = front_end.measurements(graph, keyframe);
-        let created = self.mapper.add_points(graph, keyframe, &measurements)?;
+        let created = self.add_points(graph, keyframe, &measurements)?;
         front_end.points_created(&created);
-        let time_frontend = start.elapsed();
-        // A window needs two keyframes: alone, the first one's points have nothing to be
-        // adjusted against.
-        let optimisation = if graph.num_keyframes() >= 2 {
-            Some(self.optimiser.optimise(graph, self.mapper.camera())?)
-        } else {
-            None
-        };
+        stage("keyframe: new points", &mut stage_times);
         Ok(KeyframeReport {
             keyframe,
             tracked,
             appearance_loop,
             metric_loops,
             new_points: created.len(),
-            time_frontend,
-            optimisation,
+            time_frontend: start.elapsed(),
+            stage_times,
+            optimisation: None,
         })
     }
 }

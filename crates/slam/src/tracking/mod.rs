@@ -183,6 +183,28 @@ impl<const N: usize> PoseProblem<N> {
         })
     }
 
+    /// The problem of points given in the frame of a keyframe whose pose is `t_frame`, measured
+    /// as `measurements`, from `initial` (the live tracker copies the points out of the graph
+    /// itself, and measures some frames without depth: `N = 2` against a stereo map).
+    pub fn new(
+        t_frame: Sim3,
+        points: Vec<Vector3<f64>>,
+        measurements: Vec<SVector<f64, N>>,
+        initial: &Sim3,
+    ) -> Self {
+        assert_eq!(
+            points.len(),
+            measurements.len(),
+            "one measurement per point"
+        );
+        PoseProblem {
+            t_frame,
+            points,
+            measurements,
+            relative: initial.compose(&t_frame.inverse()).rigid_part(),
+        }
+    }
+
     /// Robust motion-only BA ([`motion_only_ba`]).
     pub fn solve<P: Projector<N> + Clone>(
         &self,
