@@ -5,7 +5,7 @@
 
 use crate::frame::{FrameData, SensorFrontEnd};
 use crate::keyframes::{KeyframeImages, KeyframeStore};
-use crate::search::{SearchPoint, SearchScratch, search};
+use crate::search::{SearchPoint, SearchScratch, search, view_angle};
 use lie::Sim3;
 use nalgebra::{SVector, Vector2, Vector3};
 use slam::map::{KeyframeId, PointId, SlamGraph};
@@ -31,6 +31,8 @@ pub struct KeyframeAssociation<'a> {
     pub place: Option<AppearanceMatch<3>>,
     /// Guided-search radius of metric loop closure (pixels).
     pub loop_radius: f64,
+    /// The visibility test's largest viewing-angle change (radians).
+    pub max_view_angle: f64,
     /// Correlation a patch match needs.
     pub min_ncc: f32,
     /// New points per keyframe at most.
@@ -68,6 +70,7 @@ impl<'a> KeyframeAssociation<'a> {
             matches,
             place: None,
             loop_radius: config.mapping.loop_search_radius,
+            max_view_angle: config.tracker.max_view_angle_deg.to_radians(),
             min_ncc: config.tracker.min_ncc,
             max_new_points: config.keyframes.max_new_points,
             spacing: config.keyframes.new_point_spacing,
@@ -122,11 +125,16 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
         };
         let pose = pose.rigid_part();
         let camera = *self.sensor.pinhole();
+        // Every candidate of N2 \ N1 (thesis §6.4.1) that passes PTAM's visibility test.
+        let (w, h) = (self.frame.gray().width(), self.frame.gray().height());
+        let visible = predictions.iter().filter_map(|(p, z)| {
+            let point = SearchPoint::from_graph(graph, *p)?;
+            let inside = z.x >= 6.0 && z.y >= 6.0 && z.x < w as f64 - 6.0 && z.y < h as f64 - 6.0;
+            (inside && view_angle(&pose, &point) < self.max_view_angle).then_some(point)
+        });
         let mut found = Vec::new();
-        for (p, _) in predictions {
-            let Some(point) = SearchPoint::from_graph(graph, *p) else {
-                continue;
-            };
+        for point in visible {
+            let p = &point.point;
             let Some(anchor) = self.store.get(point.anchor) else {
                 continue;
             };
