@@ -17,7 +17,7 @@
 //! surface area `A` as `A / voxel²` (≈ 50 bytes a voxel: a 100 m² room at 1.7 cm is ~17 MB),
 //! whatever the number of keyframes.
 
-use crate::place_recognition::features::depth_off_edges;
+use crate::frame::depth_off_edges;
 use data::output::{MapPoint, PlyFormat, write_ply};
 use data::sequence::RgbPlanes;
 use geom::PinholeCamera;
@@ -58,7 +58,7 @@ pub struct DenseModelConfig {
     pub max_depth: Option<f64>,
     /// A sample is dropped if its 3×3 neighbourhood's depths spread more than this relative
     /// amount (0.05: a depth edge, where pixels mix both sides; see
-    /// `place_recognition::features::depth_off_edges`).
+    /// `crate::frame::depth_off_edges`).
     pub depth_edge_ratio: f64,
 }
 
@@ -212,7 +212,8 @@ impl KeyframeCloud {
         let mut cells: HashMap<[i32; 3], Accumulator> = HashMap::new();
         for v in (stride / 2..height).step_by(stride) {
             for u in (stride / 2..width).step_by(stride) {
-                let Some(z) = depth_off_edges(&depth, u as f64, v as f64, config.depth_edge_ratio)
+                let Some(z) =
+                    depth_off_edges(&depth, u as f64, v as f64, 1, config.depth_edge_ratio)
                 else {
                     continue;
                 };
