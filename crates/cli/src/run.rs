@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 use system::config::SystemConfig;
 use system::live::{LiveSystem, Mode, RunResult};
+use system::place_recognition::{VocabularyOrigin, load_vocabulary};
 
 /// Options of `dwslam run`.
 #[derive(Args, Debug, Clone)]
@@ -164,7 +165,26 @@ pub fn run(args: RunArgs) -> Result<()> {
         });
     }
     let name = args.path.display().to_string();
+    let loops = config.loops.clone();
     let mut system = LiveSystem::new(&sensor, config, mode, &name)?;
+    if loops.enabled {
+        let orb = loops.place_recognition.orb.params();
+        let root = data::paths::dataset_root();
+        let voc = load_vocabulary(loops.vocabulary.as_deref(), root.as_deref(), &orb)
+            .context("the vocabulary of appearance-based loop closure (loops.vocabulary in --config; loops.enabled: false runs without)")?;
+        println!(
+            "  loop closure: vocabulary of {} words, {}",
+            voc.vocabulary.num_words(),
+            match &voc.origin {
+                VocabularyOrigin::File(p) => format!("from {}", p.display()),
+                VocabularyOrigin::Shipped => "the shipped default".into(),
+                VocabularyOrigin::Cache(p) => format!("cached in {}", p.display()),
+                VocabularyOrigin::Trained { seconds, .. } =>
+                    format!("trained in {seconds:.1} s on the default training images"),
+            }
+        );
+        system = system.with_loop_closure(voc.vocabulary)?;
+    }
     let bar = if args.quiet {
         ProgressBar::hidden()
     } else {
@@ -225,6 +245,9 @@ pub fn run(args: RunArgs) -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
     let result = system.finish(interrupted)?;
     let processed = result.record.frames.len();
+    for w in &result.warnings {
+        println!("warning: {w}");
+    }
     println!(
         "{processed} frames in {seconds:.1} s ({:.1} frames per second), {} keyframes, {} points, {} loop closures{}",
         processed as f64 / seconds.max(1e-9),

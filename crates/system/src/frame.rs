@@ -249,6 +249,11 @@ impl SensorFrontEnd {
         &self.camera
     }
 
+    /// `true` when depth comes from stereo block matching (else from a depth image).
+    pub fn measures_disparity(&self) -> bool {
+        self.kind == DepthSource::BlockMatching
+    }
+
     /// The pinhole of the left / colour image.
     pub fn pinhole(&self) -> &PinholeCamera {
         &self.camera.pinhole

@@ -126,7 +126,9 @@ pub struct PlaceRecognitionConfig {
     /// Depth noise coefficient `c` of `σ_z = c·z²`, 1/m. Default 1.425·10⁻³ /m: the Kinect's
     /// measured depth noise (Khoshelham & Elberink 2012; 5.7 mm at 2 m). A stereo camera has
     /// `c = σ_d/(f·b)` (disparity noise σ_d pixels, focal length f pixels, baseline b metres):
-    /// see [`PlaceRecognitionConfig::for_stereo`].
+    /// see [`PlaceRecognitionConfig::for_stereo`]. Not read from the live system's config file:
+    /// the system sets it from its sensor (`SystemConfig::depth_noise`).
+    #[serde(skip)]
     pub depth_noise: f64,
     /// Probability mass of the inlier gate on the 3D Mahalanobis distance (0.99: χ²₃ gate
     /// √11.34 = 3.37σ, a true correspondence is rejected once in a hundred).

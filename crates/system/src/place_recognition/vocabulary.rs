@@ -39,8 +39,12 @@
 //! read it). The descriptors are dwslam's ORB (its own BRIEF pattern, see `vision::orb`), so
 //! the file is readable by other tools but its words only describe dwslam's descriptors.
 //!
-//! [`load_vocabulary`] loads a given file, or otherwise trains the default vocabulary and
-//! caches it in [`cache_dir`] (`$XDG_CACHE_HOME/dwslam`, else `~/.cache/dwslam`; never inside
+//! The default vocabulary — the default training set with the default ORB extractor — ships
+//! inside the binary ([`DEFAULT_VOCABULARY_GZ`], 138 kB; `dwslam vocabulary` reproduces it
+//! exactly, which a test checks), so that place recognition needs no data on a fresh machine.
+//!
+//! [`load_vocabulary`] loads a given file, or the shipped default, or (for other ORB
+//! parameters) trains the default training set and caches it in [`cache_dir`] (`$XDG_CACHE_HOME/dwslam`, else `~/.cache/dwslam`; never inside
 //! the repository) under a name holding the hash of the training images' bytes and of every
 //! training parameter, so that a changed training set or parameter trains anew.
 
@@ -66,6 +70,21 @@ pub const DEFAULT_TRAINING_SET: &[&str] = &[
     "middlebury_stereo/teddy/im6.png",
     "tum_rgbd_fr1_xyz_fragment/rgb",
 ];
+
+/// The default vocabulary (gzip'd DBoW2 YAML): `dwslam vocabulary` on
+/// [`DEFAULT_TRAINING_SET`] with `OrbConfig::default()`.
+pub const DEFAULT_VOCABULARY_GZ: &[u8] = include_bytes!("../../assets/default_vocabulary.yml.gz");
+
+/// Parses the shipped default vocabulary.
+pub fn default_vocabulary() -> Result<Vocabulary, VocabularyError> {
+    use std::io::Read;
+    let mut text = String::new();
+    flate2::read::GzDecoder::new(DEFAULT_VOCABULARY_GZ)
+        .read_to_string(&mut text)
+        .map_err(|e| VocabularyError::NoImages(format!("the shipped vocabulary: {e}")))?;
+    Vocabulary::parse_dbow_yaml(&text)
+        .map_err(|e| VocabularyError::NoImages(format!("the shipped vocabulary: {e}")))
+}
 
 /// Training descriptors per word the tree shape aims at (the thesis's ~10: see the
 /// [module docs](self)).
@@ -469,6 +488,8 @@ pub fn cache_file(dir: &Path, set: &TrainingSet) -> PathBuf {
 pub enum VocabularyOrigin {
     /// The file the caller named.
     File(PathBuf),
+    /// The default vocabulary shipped in the binary.
+    Shipped,
     /// The cache of an earlier training of the same set.
     Cache(PathBuf),
     /// Trained now; cached at the path, or not (with the reason).
@@ -492,8 +513,9 @@ pub struct LoadedVocabulary {
 }
 
 /// The vocabulary the live system uses: the DBoW2 YAML file `file` (optionally gzip'd) if
-/// given; otherwise the default vocabulary of the default training set under the shared data
-/// folder `data_root` — from the cache ([`cache_dir`]) if an earlier training of the same
+/// given; otherwise, for the default ORB parameters, the shipped default vocabulary; for
+/// others, the vocabulary of the default training set under the shared data folder
+/// `data_root` — from the cache ([`cache_dir`]) if an earlier training of the same
 /// images and parameters is there, else trained now (seconds) and cached. A cache that cannot
 /// be written or read is not an error: training runs again.
 pub fn load_vocabulary(
@@ -515,6 +537,12 @@ pub fn load_vocabulary_cached(
         return Ok(LoadedVocabulary {
             vocabulary: std::sync::Arc::new(Vocabulary::load_dbow_yaml(path)?),
             origin: VocabularyOrigin::File(path.to_path_buf()),
+        });
+    }
+    if *orb == crate::place_recognition::OrbConfig::default().params() {
+        return Ok(LoadedVocabulary {
+            vocabulary: std::sync::Arc::new(default_vocabulary()?),
+            origin: VocabularyOrigin::Shipped,
         });
     }
     let root = data_root.ok_or_else(|| {
@@ -615,8 +643,8 @@ mod tests {
     }
 
     /// The default vocabulary: 22 distinct images, a shape from the descriptor count, the same
-    /// vocabulary from two trainings, cached on the first load and read back on the second, a
-    /// corrupt cache trained over.
+    /// vocabulary from two trainings and the shipped one; other ORB parameters train, cache on
+    /// the first load and read back on the second, a corrupt cache trained over.
     #[test]
     fn default_vocabulary_trains_reproducibly_and_is_cached() {
         let Some(root) = data::paths::require("slambook2_sample_images")
@@ -644,6 +672,18 @@ mod tests {
             (5.0..20.0).contains(&per_word),
             "{per_word} descriptors per word"
         );
+        assert_eq!(default_vocabulary().unwrap(), a.vocabulary);
+        let shipped = load_vocabulary_cached(None, Some(&root), &orb, None).unwrap();
+        assert_eq!(shipped.origin, VocabularyOrigin::Shipped);
+        let orb = OrbParams {
+            num_features: 500,
+            ..orb
+        };
+        let a = train(
+            &TrainingSet::read(&set.images, TrainingParams::new(orb)).unwrap(),
+            &|_, _| {},
+        )
+        .unwrap();
         let cache = std::env::temp_dir().join(format!("dwslam-voccache-{}", std::process::id()));
         let load = || load_vocabulary_cached(None, Some(&root), &orb, Some(&cache)).unwrap();
         let first = load();
