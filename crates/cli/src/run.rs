@@ -62,6 +62,10 @@ pub struct RunArgs {
     /// Also write the trajectory in KITTI format.
     #[arg(long)]
     pub kitti: bool,
+    /// Also fuse the optimised keyframes' depth into one coloured, voxel-filtered point cloud,
+    /// `dense.ply` (thesis §6.5.3; `dense` in --config sets the voxel size).
+    #[arg(long)]
+    pub dense_ply: bool,
     /// No progress bar (for logs).
     #[arg(long)]
     pub quiet: bool,
@@ -69,6 +73,9 @@ pub struct RunArgs {
 
 /// Per frame: the tracker's counts and times (CSV).
 pub const FRAME_STATS_FILE: &str = "frames.csv";
+
+/// The dense model of `--dense-ply`.
+pub const DENSE_FILE: &str = "dense.ply";
 
 /// The trajectory file of the poses after the run's final optimisation.
 pub const FINAL_TRAJECTORY_FILE: &str = "trajectory_final.tum";
@@ -91,7 +98,6 @@ pub fn run(args: RunArgs) -> Result<()> {
         args.max_frames != Some(0),
         "--max-frames must be at least 1"
     );
-    args::output_dir(&args.out, "--out")?;
     let options = OpenOptions {
         format: args
             .format
@@ -122,6 +128,8 @@ pub fn run(args: RunArgs) -> Result<()> {
             args.path.display()
         ),
     };
+    // The output folder is made only once the input is known to be runnable.
+    args::output_dir(&args.out, "--out")?;
     let mode = if args.deterministic {
         Mode::Deterministic
     } else {
@@ -166,6 +174,16 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     let name = args.path.display().to_string();
     let loops = config.loops.clone();
+    let dense_config = {
+        let (camera, stereo) = match &sensor {
+            SensorModel::Stereo(s) => (*s, true),
+            SensorModel::Rgbd(r) => (r.stereo, false),
+            SensorModel::Mono(_) => unreachable!("refused above"),
+        };
+        let mut dense = config.dense.clone();
+        dense.depth_noise = config.depth_noise_for(&camera, stereo);
+        (camera.pinhole, dense)
+    };
     let mut system = LiveSystem::new(&sensor, config, mode, &name)?;
     if loops.enabled {
         let orb = loops.place_recognition.orb.params();
@@ -319,6 +337,25 @@ pub fn run(args: RunArgs) -> Result<()> {
         }
     }
     write_frame_stats(&args.out.join(FRAME_STATS_FILE), &result)?;
+    if args.dense_ply {
+        let (camera, config) = &dense_config;
+        let t = Instant::now();
+        let model = system::dense_model::fuse(&result.graph, &result.keyframes, camera, config)?;
+        let path = args.out.join(DENSE_FILE);
+        let file =
+            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+        model
+            .write_ply(std::io::BufWriter::new(file))
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "dense model: {} points from {} keyframes ({:.1} cm voxels, seen from ≥ {}) in {:.1} s",
+            model.points().len(),
+            model.views(),
+            config.voxel_size * 100.0,
+            config.min_views,
+            t.elapsed().as_secs_f64()
+        );
+    }
     report(&args.out, &result, ground_truth)?;
     println!("wrote {}", args.out.display());
     match failure {

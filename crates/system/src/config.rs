@@ -54,6 +54,9 @@ pub struct SystemConfig {
     pub depth_noise: Option<f64>,
     /// Large-scale loop closure by appearance (thesis §6.4.2).
     pub loops: LoopConfig,
+    /// The dense model of `dwslam run --dense-ply` (thesis §6.5.3; its `depth_noise` is the
+    /// system's).
+    pub dense: crate::dense_model::DenseModelConfig,
 }
 
 /// Large-scale loop closure (thesis §6.4.2; [`crate::loops`]).
@@ -102,6 +105,7 @@ impl Default for SystemConfig {
             stereo: StereoConfig::default(),
             depth_noise: None,
             loops: LoopConfig::default(),
+            dense: Default::default(),
         }
     }
 }
@@ -380,6 +384,9 @@ impl SystemConfig {
         {
             return bad("depth_noise must be positive".into());
         }
+        self.dense
+            .validate()
+            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
         if self.loops.queue == 0 {
             return bad("loops.queue must be at least 1".into());
         }

@@ -51,7 +51,9 @@ pub struct DenseModelConfig {
     /// crosses gets samples, no more than needed.
     pub stride: Option<usize>,
     /// Depth noise coefficient `c` of `σ_z = c·z²`, 1/m ([`KINECT_DEPTH_NOISE`]; a stereo
-    /// camera: `σ_d/(f·b)`).
+    /// camera: `σ_d/(f·b)`). Not read from the live system's config file: [`fuse`] takes the
+    /// system's (`SystemConfig::depth_noise`).
+    #[serde(skip)]
     pub depth_noise: f64,
     /// Farthest depth used, metres; `None`: where the noise reaches the voxel size,
     /// `√(voxel/c)` (3.5 m for the defaults): farther samples scatter over several voxels.
@@ -520,4 +522,47 @@ mod tests {
         m.write_ply(&mut ply).unwrap();
         assert!(String::from_utf8_lossy(&ply).contains("element vertex 1"));
     }
+}
+
+/// The dense model of a run (thesis §6.5.3): every keyframe of `graph` whose images `store`
+/// holds, its depth sampled ([`KeyframeCloud::from_depth`], in parallel) and placed with its
+/// final pose, in keyframe order (the model does not depend on the thread count).
+pub fn fuse(
+    graph: &slam::map::SlamGraph<3>,
+    store: &crate::keyframes::KeyframeStore,
+    camera: &PinholeCamera,
+    config: &DenseModelConfig,
+) -> Result<DenseModel, DenseModelError> {
+    use rayon::prelude::*;
+    let mut model = DenseModel::new(config.clone())?;
+    let keyframes: Vec<_> = graph
+        .keyframes()
+        .filter_map(|(k, kf)| {
+            let images = store.get(k)?;
+            images.depth.as_ref()?;
+            Some((*kf.camera_from_world(), images.clone()))
+        })
+        .collect();
+    let clouds: Vec<(Sim3, KeyframeCloud)> = keyframes
+        .par_iter()
+        .map(|(pose, images)| {
+            let depth = images.depth.as_ref().expect("filtered above");
+            let colour = match &images.colour {
+                Some(planes) => Colour::Rgb(planes),
+                None => Colour::Grey(&images.gray),
+            };
+            let cloud = KeyframeCloud::from_depth(
+                |u, v| crate::frame::pixel_depth(depth, u, v),
+                (depth.width(), depth.height()),
+                colour,
+                camera,
+                config,
+            );
+            (*pose, cloud)
+        })
+        .collect();
+    for (pose, cloud) in &clouds {
+        model.add(pose, cloud);
+    }
+    Ok(model)
 }
