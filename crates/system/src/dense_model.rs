@@ -345,6 +345,49 @@ impl DenseModel {
     }
 }
 
+/// The dense model of a run (thesis §6.5.3): every keyframe of `graph` whose images `store`
+/// holds, its depth sampled ([`KeyframeCloud::from_depth`], in parallel) and placed with its
+/// final pose, in keyframe order (the model does not depend on the thread count).
+pub fn fuse(
+    graph: &slam::map::SlamGraph<3>,
+    store: &crate::keyframes::KeyframeStore,
+    camera: &PinholeCamera,
+    config: &DenseModelConfig,
+) -> Result<DenseModel, DenseModelError> {
+    use rayon::prelude::*;
+    let mut model = DenseModel::new(config.clone())?;
+    let keyframes: Vec<_> = graph
+        .keyframes()
+        .filter_map(|(k, kf)| {
+            let images = store.get(k)?;
+            images.depth.as_ref()?;
+            Some((*kf.camera_from_world(), images.clone()))
+        })
+        .collect();
+    let clouds: Vec<(Sim3, KeyframeCloud)> = keyframes
+        .par_iter()
+        .map(|(pose, images)| {
+            let depth = images.depth.as_ref().expect("filtered above");
+            let colour = match &images.colour {
+                Some(planes) => Colour::Rgb(planes),
+                None => Colour::Grey(&images.gray),
+            };
+            let cloud = KeyframeCloud::from_depth(
+                |u, v| crate::frame::pixel_depth(depth, u, v),
+                (depth.width(), depth.height()),
+                colour,
+                camera,
+                config,
+            );
+            (*pose, cloud)
+        })
+        .collect();
+    for (pose, cloud) in &clouds {
+        model.add(pose, cloud);
+    }
+    Ok(model)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -522,47 +565,4 @@ mod tests {
         m.write_ply(&mut ply).unwrap();
         assert!(String::from_utf8_lossy(&ply).contains("element vertex 1"));
     }
-}
-
-/// The dense model of a run (thesis §6.5.3): every keyframe of `graph` whose images `store`
-/// holds, its depth sampled ([`KeyframeCloud::from_depth`], in parallel) and placed with its
-/// final pose, in keyframe order (the model does not depend on the thread count).
-pub fn fuse(
-    graph: &slam::map::SlamGraph<3>,
-    store: &crate::keyframes::KeyframeStore,
-    camera: &PinholeCamera,
-    config: &DenseModelConfig,
-) -> Result<DenseModel, DenseModelError> {
-    use rayon::prelude::*;
-    let mut model = DenseModel::new(config.clone())?;
-    let keyframes: Vec<_> = graph
-        .keyframes()
-        .filter_map(|(k, kf)| {
-            let images = store.get(k)?;
-            images.depth.as_ref()?;
-            Some((*kf.camera_from_world(), images.clone()))
-        })
-        .collect();
-    let clouds: Vec<(Sim3, KeyframeCloud)> = keyframes
-        .par_iter()
-        .map(|(pose, images)| {
-            let depth = images.depth.as_ref().expect("filtered above");
-            let colour = match &images.colour {
-                Some(planes) => Colour::Rgb(planes),
-                None => Colour::Grey(&images.gray),
-            };
-            let cloud = KeyframeCloud::from_depth(
-                |u, v| crate::frame::pixel_depth(depth, u, v),
-                (depth.width(), depth.height()),
-                colour,
-                camera,
-                config,
-            );
-            (*pose, cloud)
-        })
-        .collect();
-    for (pose, cloud) in &clouds {
-        model.add(pose, cloud);
-    }
-    Ok(model)
 }
