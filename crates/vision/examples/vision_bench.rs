@@ -10,6 +10,12 @@
 //!   vision_bench tvl1 IMG0 IMG1 OUT [ITERATIONS [WARPS]]
 //!                                           (writes OUT.du, OUT.dv as raw f32; default params
 //!                                           unless ITERATIONS / WARPS per warp are given)
+//!   vision_bench dense REF REF_DEPTH CUR FX FY CX CY LEVELS FINEST ITERATIONS
+//!                                           (REF_DEPTH: 16-bit PNG in millimetres, 0 and 65535
+//!                                           invalid; pyramids built outside the timing, as in the
+//!                                           live tracker; prints cur_from_ref as a 4×4 matrix,
+//!                                           the time of prepare + align, of each alone, and
+//!                                           with both pyramids built)
 
 use std::time::Instant;
 use vision::fast::fast9_pyramid;
@@ -173,6 +179,79 @@ fn main() {
             println!(
                 "{}",
                 serde_json::json!({"ms": ms, "width": f.du.width(), "height": f.du.height()})
+            );
+        }
+        "dense" => {
+            use lie::LieGroup;
+            let iref = load_gray_u8(arg(2)).expect("reference image");
+            let raw = vision::image::load_u16(arg(3)).expect("reference depth");
+            let depth = raw.map(|d| {
+                if d == 0 || d == u16::MAX {
+                    f32::NAN
+                } else {
+                    d as f32 * 1e-3
+                }
+            });
+            let icur = load_gray_u8(arg(4)).expect("current image");
+            let f = |i: usize| arg(i).parse::<f64>().expect("intrinsics");
+            let camera = geom::PinholeCamera::new(f(5), f(6), f(7), f(8));
+            let params = vision::dense::DenseParams {
+                levels: arg(9).parse().expect("levels"),
+                finest_level: arg(10).parse().expect("finest level"),
+                max_iterations: arg(11).parse().expect("iterations"),
+                ..Default::default()
+            };
+            let pr = Pyramid::new(&iref, params.levels, 16).expect("pyramid");
+            let pc = Pyramid::new(&icur, params.levels, 16).expect("pyramid");
+            // The live tracker's per-frame work: prepare the reference, align the next frame
+            // against it (buffers kept across frames).
+            let mut scratch = vision::dense::DenseScratch::default();
+            let (ms, r) = time_ms(5, || {
+                vision::dense::DenseReference::new(&pr, &depth, &camera, &params)
+                    .expect("dense reference")
+                    .align(&pc, &lie::Se3::identity(), &mut scratch)
+                    .expect("dense alignment")
+            });
+            let reference = vision::dense::DenseReference::new(&pr, &depth, &camera, &params)
+                .expect("reference");
+            let (ms_prepare, _) = time_ms(5, || {
+                vision::dense::DenseReference::new(&pr, &depth, &camera, &params)
+                    .expect("dense reference")
+            });
+            let (ms_align, _) = time_ms(5, || {
+                reference
+                    .align(&pc, &lie::Se3::identity(), &mut scratch)
+                    .expect("dense alignment")
+            });
+            // Including both image pyramids (which the tracker has already), as the OpenCV
+            // peer builds them inside its frame preparation.
+            let (ms_with_pyramids, _) = time_ms(5, || {
+                let pr = Pyramid::new(&iref, params.levels, 16).expect("pyramid");
+                let pc = Pyramid::new(&icur, params.levels, 16).expect("pyramid");
+                vision::dense::DenseReference::new(&pr, &depth, &camera, &params)
+                    .expect("dense reference")
+                    .align(&pc, &lie::Se3::identity(), &mut scratch)
+                    .expect("dense alignment")
+            });
+            let scalar = vision::simd::scalar_only(|| {
+                reference
+                    .align(&pc, &lie::Se3::identity(), &mut scratch)
+                    .expect("dense alignment")
+            });
+            let same_as_scalar = scalar.cur_from_ref.matrix() == r.cur_from_ref.matrix()
+                && scalar.final_cost.to_bits() == r.final_cost.to_bits()
+                && scalar.iterations == r.iterations;
+            let m = r.cur_from_ref.matrix();
+            let rows: Vec<Vec<f64>> = (0..4)
+                .map(|i| (0..4).map(|j| m[(i, j)]).collect())
+                .collect();
+            println!(
+                "{}",
+                serde_json::json!({"ms": ms, "ms_prepare": ms_prepare, "ms_align": ms_align,
+                                   "ms_with_pyramids": ms_with_pyramids,
+                                   "cur_from_ref": rows, "iterations": r.iterations,
+                                   "residuals": r.num_residuals, "cost": r.final_cost,
+                                   "same_as_scalar": same_as_scalar})
             );
         }
         other => panic!("unknown command {other}"),

@@ -147,6 +147,50 @@ fn simd_and_scalar_paths_agree_on_real_frames() {
         };
         assert!(f() == vision::simd::scalar_only(f), "TV-L1");
     }
+    if let Some(ss) = data_dir("seven_scenes_redkitchen_1000") {
+        // Dense alignment as the live tracker runs it (4 levels down to level 2, 10 iterations)
+        // and down to level 0, frame 100 (with depth) to 101.
+        let f = |i: usize| load_gray_u8(ss.join(format!("rgb/frame-{i:06}.color.jpg"))).unwrap();
+        let raw = vision::image::load_u16(ss.join("depth/frame-000100.depth.png")).unwrap();
+        let depth = raw.map(|d| {
+            if d == 0 || d == u16::MAX {
+                f32::NAN
+            } else {
+                d as f32 * 1e-3
+            }
+        });
+        let cam = geom::PinholeCamera::new(585.0, 585.0, 320.0, 240.0);
+        let (pa, pb) = (
+            Pyramid::new(&f(100), 4, 16).unwrap(),
+            Pyramid::new(&f(101), 4, 16).unwrap(),
+        );
+        for finest in [2, 0] {
+            let params = DenseParams {
+                levels: 4,
+                finest_level: finest,
+                max_iterations: 10,
+                ..Default::default()
+            };
+            let run = || {
+                let r = vision::dense::DenseReference::new(&pa, &depth, &cam, &params).unwrap();
+                let a = r
+                    .align(&pb, &Se3::identity(), &mut Default::default())
+                    .unwrap();
+                let m = a.cur_from_ref.matrix();
+                (
+                    m.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    a.final_cost.to_bits(),
+                    a.iterations,
+                    a.num_residuals,
+                )
+            };
+            assert_eq!(
+                run(),
+                vision::simd::scalar_only(run),
+                "dense, finest level {finest}"
+            );
+        }
+    }
 }
 
 /// Evaluates our stereo matcher on the three Middlebury pairs (non-occluded mask derived from
