@@ -73,43 +73,6 @@ fn flat(e: impl Display) -> anyhow::Error {
     anyhow!("{e}")
 }
 
-/// A writable output folder: created if absent, probed with a file.
-fn check_dir_writable(dir: &Path, what: &str) -> Result<()> {
-    if dir.exists() && !dir.is_dir() {
-        bail!("{what} {} is a file, not a folder", dir.display());
-    }
-    std::fs::create_dir_all(dir)
-        .map_err(|e| anyhow!("{what} {}: cannot create the folder: {e}", dir.display()))?;
-    let probe = dir.join(".dwslam-write-probe");
-    std::fs::write(&probe, b"")
-        .map_err(|e| anyhow!("{what} {} is not writable: {e}", dir.display()))?;
-    let _ = std::fs::remove_file(probe);
-    Ok(())
-}
-
-/// A writable output file: its folder exists and takes a file, and it is not a folder.
-pub fn check_file_writable(file: &Path, what: &str) -> Result<()> {
-    if file.is_dir() {
-        bail!("{what} {} is a folder, not a file", file.display());
-    }
-    let parent = match file.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    if !parent.is_dir() {
-        bail!(
-            "{what} {}: the folder {} does not exist",
-            file.display(),
-            parent.display()
-        );
-    }
-    let probe = parent.join(".dwslam-write-probe");
-    std::fs::write(&probe, b"")
-        .map_err(|e| anyhow!("{what} {}: the folder is not writable: {e}", file.display()))?;
-    let _ = std::fs::remove_file(probe);
-    Ok(())
-}
-
 /// Where a trajectory comes from.
 struct Source {
     path: PathBuf,
@@ -235,10 +198,10 @@ pub fn run(args: EvalArgs) -> Result<()> {
         bail!("--max-time-difference must be a non-negative number of seconds");
     }
     if let Some(dir) = &args.plot {
-        check_dir_writable(dir, "--plot")?;
+        crate::args::output_dir(dir, "--plot")?;
     }
     if let Some(file) = &args.json {
-        check_file_writable(file, "--json")?;
+        crate::args::output_file(file, "--json")?;
     }
 
     let reference = load(&gt_arg, Role::GroundTruth)?;

@@ -86,6 +86,48 @@ pub enum DampingArg {
     Levenberg,
 }
 
+/// Every argument of `dwslam pgo` checked before any work (see `crate::args`).
+fn check(args: &PgoArgs) -> Result<()> {
+    use crate::args;
+    args::input_file(&args.file, "FILE")?;
+    anyhow::ensure!(
+        args.max_iterations >= 1,
+        "--max-iterations must be at least 1"
+    );
+    let non_negative = |x: f64| x.is_finite() && x >= 0.0;
+    anyhow::ensure!(
+        non_negative(args.relative_tolerance) && non_negative(args.absolute_tolerance),
+        "--relative-tolerance and --absolute-tolerance must be non-negative numbers"
+    );
+    anyhow::ensure!(
+        args.initial_lambda.is_finite() && args.initial_lambda > 0.0,
+        "--initial-lambda must be positive (got {})",
+        args.initial_lambda
+    );
+    anyhow::ensure!(
+        args.lambda_decrease_floor > 0.0 && args.lambda_decrease_floor < 1.0,
+        "--lambda-decrease-floor must lie in (0, 1) (got {})",
+        args.lambda_decrease_floor
+    );
+    anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1");
+    if let Some(s) = args.scale_information {
+        anyhow::ensure!(
+            s.is_finite() && s > 0.0,
+            "--scale-information must be positive (got {s})"
+        );
+    }
+    for (path, what) in [
+        (&args.out, "--out"),
+        (&args.plot, "--plot"),
+        (&args.json, "--json"),
+    ] {
+        if let Some(p) = path {
+            args::output_file(p, what)?;
+        }
+    }
+    Ok(())
+}
+
 /// Options of `dwslam pgo`.
 #[derive(Args, Debug)]
 pub struct PgoArgs {
@@ -285,6 +327,7 @@ fn to_sim3(
 
 /// Entry point of `dwslam pgo`.
 pub fn run(args: PgoArgs) -> Result<()> {
+    check(&args)?;
     let start = Instant::now();
     let file = read_g2o(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
     for tag in &file.report.unknown_tags {

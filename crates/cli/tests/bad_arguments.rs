@@ -200,6 +200,39 @@ fn ba_checks_its_arguments_first() {
 }
 
 #[test]
+fn pgo_checks_its_arguments_first() {
+    let dir = scratch("pgo");
+    let g2o = dir.join("tiny.g2o");
+    std::fs::write(
+        &g2o,
+        "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n",
+    )
+    .unwrap();
+    let g = path(&g2o);
+    let message = fails(&["pgo", path(&dir.join("missing.g2o"))], "no such file");
+    assert!(!message.contains("reading"), "{message}");
+    fails(&["pgo", path(&dir)], "is a folder");
+    fails(&["pgo", g, "--max-iterations", "0"], "--max-iterations");
+    fails(
+        &["pgo", g, "--relative-tolerance=-1"],
+        "--relative-tolerance",
+    );
+    fails(&["pgo", g, "--initial-lambda", "0"], "--initial-lambda");
+    fails(
+        &["pgo", g, "--lambda-decrease-floor", "1.5"],
+        "--lambda-decrease-floor",
+    );
+    fails(&["pgo", g, "--threads", "0"], "--threads");
+    fails(
+        &["pgo", g, "--scale-information", "nan"],
+        "--scale-information",
+    );
+    fails(&["pgo", g, "--json", path(&dir)], "is a folder");
+    fails(&["pgo", g, "--out", path(&g2o.join("x.g2o"))], "--out");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn inspect_checks_its_arguments_first() {
     let dir = scratch("inspect");
     let missing = dir.join("missing.png");

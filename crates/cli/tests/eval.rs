@@ -69,18 +69,19 @@ fn eval_reads_a_run_folder_and_validates_its_arguments_first() {
         !ok && stderr.contains("the ground truth /no/such/gt.txt does not exist"),
         "{stderr}"
     );
+    let gt = run.join("ground_truth.tum");
+    // A folder that cannot be made: its parent is a file.
+    let under_a_file = gt.join("x.json");
     let (ok, _, stderr) = dwslam(&[
         "eval",
         run.to_str().unwrap(),
         "--json",
-        "/no/such/dir/x.json",
+        under_a_file.to_str().unwrap(),
     ]);
     assert!(
-        !ok && stderr
-            .contains("--json /no/such/dir/x.json: the folder /no/such/dir does not exist"),
+        !ok && stderr.contains("x.json: cannot create its folder"),
         "{stderr}"
     );
-    let gt = run.join("ground_truth.tum");
     let (ok, _, stderr) = dwslam(&[
         "eval",
         run.to_str().unwrap(),
@@ -88,7 +89,7 @@ fn eval_reads_a_run_folder_and_validates_its_arguments_first() {
         gt.to_str().unwrap(),
     ]);
     assert!(
-        !ok && stderr.contains("is a file, not a folder"),
+        !ok && stderr.contains("is a file, expected a folder"),
         "{stderr}"
     );
     // A malformed trajectory names the file and the line, once.

@@ -5,7 +5,16 @@ use std::path::Path;
 /// Errors of image loading and construction.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
-    /// The file could not be read or decoded (missing, corrupt, unsupported format).
+    /// The file could not be opened or read (missing, unreadable).
+    #[error("cannot read image {path}: {source}")]
+    Io {
+        /// The file that failed.
+        path: String,
+        /// The system's error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file could not be decoded (corrupt, truncated, unsupported format).
     #[error("cannot decode image {path}: {source}")]
     Decode {
         /// The file that failed.
@@ -236,16 +245,14 @@ fn check_size(path: &str, width: usize, height: usize) -> Result<(), ImageError>
 
 fn decode(path: &Path) -> Result<::image::DynamicImage, ImageError> {
     let name = path.display().to_string();
+    let io = |e| ImageError::Io {
+        path: name.clone(),
+        source: e,
+    };
     let reader = ::image::ImageReader::open(path)
-        .map_err(|e| ImageError::Decode {
-            path: name.clone(),
-            source: ::image::ImageError::IoError(e),
-        })?
+        .map_err(io)?
         .with_guessed_format()
-        .map_err(|e| ImageError::Decode {
-            path: name.clone(),
-            source: ::image::ImageError::IoError(e),
-        })?;
+        .map_err(io)?;
     let img = reader.decode().map_err(|e| ImageError::Decode {
         path: name.clone(),
         source: e,
@@ -347,6 +354,11 @@ mod tests {
     fn load_missing_file_names_it() {
         let e = load_gray_u8("/nonexistent/dir/x.png").unwrap_err();
         assert!(e.to_string().contains("/nonexistent/dir/x.png"));
+        assert!(
+            matches!(&e, ImageError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound),
+            "{e}"
+        );
+        assert!(!e.to_string().contains("decode"), "{e}");
     }
 
     #[test]
