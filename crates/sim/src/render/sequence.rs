@@ -117,6 +117,89 @@ impl std::fmt::Debug for Sequence {
     }
 }
 
+/// Takes the images of frame `index` at time `t` (s) with `sensor`, the (left) camera moving
+/// along `world_from_camera(t)`: every view (one, or two for stereo) rendered at the poses of
+/// the exposure's sub-frames, averaged, exposed with the gain at `t` and the frame's noise
+/// (seeded by `seed` and `index`). Returns the images and the gain used. The renderer's cache
+/// is told the frame ended.
+pub fn capture(
+    renderer: &mut Renderer,
+    sensor: &SensorModel,
+    seed: u64,
+    index: usize,
+    t: f64,
+    world_from_camera: &dyn Fn(f64) -> Se3,
+) -> Result<(FrameImages, f64), RenderError> {
+    sensor.validate()?;
+    let gain = sensor.gain_at(seed, t);
+    let (w, h) = (sensor.camera.width, sensor.camera.height);
+    let colour = sensor.kind == SensorKind::Rgbd;
+    let opts = ViewOptions {
+        supersampling: sensor.supersampling,
+        colour,
+    };
+    let (steps, exposure) = sensor
+        .motion_blur
+        .map_or((1, 0.0), |b| (b.steps, b.exposure));
+    let views: Vec<Se3> = match sensor.kind {
+        SensorKind::Stereo { baseline } => {
+            vec![Se3::identity(), SensorModel::right_from_left(baseline)]
+        }
+        _ => vec![Se3::identity()],
+    };
+    let mut images = Vec::new();
+    let mut depth = None;
+    for (vi, right_from_left) in views.iter().enumerate() {
+        let mut acc = vec![[0f32; 3]; w * h];
+        for step in 0..steps {
+            let ts = t + ((step as f64 + 0.5) / steps as f64 - 0.5) * exposure;
+            let camera_from_world = right_from_left.compose(&world_from_camera(ts).inverse());
+            let pixels = renderer.render(&sensor.camera, &camera_from_world, &opts)?;
+            for (a, p) in acc.iter_mut().zip(&pixels) {
+                for (x, r) in a.iter_mut().zip(&p.radiance) {
+                    *x += r;
+                }
+            }
+            if colour && step == steps / 2 {
+                depth = Some(sensor::depth_image(sensor, &pixels, seed, index));
+            }
+        }
+        if steps > 1 {
+            let inv = 1.0 / steps as f32;
+            for a in &mut acc {
+                for c in a.iter_mut() {
+                    *c *= inv;
+                }
+            }
+        }
+        let channels = if colour { 3 } else { 1 };
+        images.push(sensor::expose(
+            sensor, &acc, channels, gain, seed, index, vi as u64,
+        ));
+    }
+    renderer.end_frame();
+    let grey = |b: Vec<u8>| GrayImage::from_vec(w, h, w, b).expect("sized");
+    let images = match sensor.kind {
+        SensorKind::Mono => FrameImages::Mono(grey(images.remove(0))),
+        SensorKind::Stereo { .. } => {
+            let right = grey(images.remove(1));
+            FrameImages::Stereo {
+                left: grey(images.remove(0)),
+                right,
+            }
+        }
+        SensorKind::Rgbd => {
+            let b = images.remove(0);
+            let rgb: Vec<[u8; 3]> = b.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+            FrameImages::Rgbd {
+                rgb: Image::from_vec(w, h, w, rgb).expect("sized"),
+                depth: depth.expect("rendered at the middle step"),
+            }
+        }
+    };
+    Ok((images, gain))
+}
+
 impl Sequence {
     /// Builds the world and the trajectory; checks the configuration.
     pub fn new(config: SequenceConfig) -> Result<Self, RenderError> {
@@ -198,82 +281,16 @@ impl Sequence {
 
     /// Renders frame `k`.
     pub fn render_frame(&mut self, k: usize) -> Result<Frame, RenderError> {
-        let sensor = self.config.sensor;
-        let seed = self.config.seed;
         let t = self.time(k);
-        let gain = sensor.gain_at(seed, t);
-        let (w, h) = (sensor.camera.width, sensor.camera.height);
-        let colour = sensor.kind == SensorKind::Rgbd;
-        let opts = ViewOptions {
-            supersampling: sensor.supersampling,
-            colour,
-        };
-        let (steps, exposure) = sensor
-            .motion_blur
-            .map_or((1, 0.0), |b| (b.steps, b.exposure));
-        let views: Vec<Se3> = match sensor.kind {
-            SensorKind::Stereo { baseline } => {
-                vec![Se3::identity(), SensorModel::right_from_left(baseline)]
-            }
-            _ => vec![Se3::identity()],
-        };
-        let mut images = Vec::new();
-        let mut depth = None;
-        for (vi, right_from_left) in views.iter().enumerate() {
-            let mut acc = vec![[0f32; 3]; w * h];
-            for step in 0..steps {
-                let ts = t + ((step as f64 + 0.5) / steps as f64 - 0.5) * exposure;
-                let camera_from_world =
-                    right_from_left.compose(&self.path.world_from_camera(ts).inverse());
-                let pixels = self
-                    .renderer
-                    .render(&sensor.camera, &camera_from_world, &opts)?;
-                for (a, p) in acc.iter_mut().zip(&pixels) {
-                    for (x, r) in a.iter_mut().zip(&p.radiance) {
-                        *x += r;
-                    }
-                }
-                if colour && step == steps / 2 {
-                    depth = Some(sensor::depth_image(&sensor, &pixels, seed, k));
-                }
-            }
-            if steps > 1 {
-                let inv = 1.0 / steps as f32;
-                for a in &mut acc {
-                    for c in a.iter_mut() {
-                        *c *= inv;
-                    }
-                }
-            }
-            let channels = if colour { 3 } else { 1 };
-            let bytes = if channels == 1 {
-                let grey: Vec<[f32; 3]> = acc;
-                sensor::expose(&sensor, &grey, 1, gain, seed, k, vi as u64)
-            } else {
-                sensor::expose(&sensor, &acc, 3, gain, seed, k, vi as u64)
-            };
-            images.push(bytes);
-        }
-        self.renderer.end_frame();
-        let grey = |b: Vec<u8>| GrayImage::from_vec(w, h, w, b).expect("sized");
-        let images = match sensor.kind {
-            SensorKind::Mono => FrameImages::Mono(grey(images.remove(0))),
-            SensorKind::Stereo { .. } => {
-                let right = grey(images.remove(1));
-                FrameImages::Stereo {
-                    left: grey(images.remove(0)),
-                    right,
-                }
-            }
-            SensorKind::Rgbd => {
-                let b = images.remove(0);
-                let rgb: Vec<[u8; 3]> = b.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-                FrameImages::Rgbd {
-                    rgb: Image::from_vec(w, h, w, rgb).expect("sized"),
-                    depth: depth.expect("rendered at the middle step"),
-                }
-            }
-        };
+        let path = self.path.as_ref();
+        let (images, gain) = capture(
+            &mut self.renderer,
+            &self.config.sensor,
+            self.config.seed,
+            k,
+            t,
+            &|ts| path.world_from_camera(ts),
+        )?;
         Ok(Frame {
             index: k,
             timestamp_us: self.timestamp_us(k),

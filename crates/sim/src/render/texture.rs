@@ -144,7 +144,8 @@ pub enum Layer {
     },
     /// A checkerboard with squares of `square` metres, `columns × rows` squares, lower-left
     /// corner at `origin`, black `0.05` and white `0.95`, on whatever lies below it; its inner
-    /// corners are at `origin + (i·square, j·square)` — the geometric test target.
+    /// corners are at `origin + (i·square, j·square)` — the geometric test target. Box-filtered
+    /// over two texels (see `checker`), so its edges and corners are reconstructed exactly.
     Checker {
         /// Lower-left corner `(s, t)` (m).
         origin: (f64, f64),
@@ -664,13 +665,17 @@ fn checker(
 ) -> f64 {
     let (x, y) = ((s - origin.0) / square, (t - origin.1) / square);
     let (wc, hc) = (columns as f64, rows as f64);
-    let w = texel / square;
+    // Box filter of two texels: the filtered pattern is then bilinear in (s, t) within a texel
+    // of every edge and corner, so the bilinear reconstruction from the texels is exact there
+    // and edges and corners stay exactly where they are at every mip level (a one-texel box
+    // would shift the reconstructed edge by up to 0.08 texel with the sub-texel phase).
+    let w = 2.0 * texel / square;
     let inside = interval_aa(x, 0.0, wc, w) * interval_aa(y, 0.0, hc, w);
     if inside <= 0.0 {
         return v;
     }
-    // Box-filtered checker: the product of two box-filtered square waves, which is exact for
-    // the area average of the pattern over an axis-aligned texel.
+    // The product of two box-filtered square waves: the area average of the pattern over an
+    // axis-aligned box of side 2τ.
     let sq = |z: f64| {
         // Square wave ±1 with period 2, box-filtered over width w: the integral of the wave
         // is a triangle wave.
@@ -773,8 +778,8 @@ mod tests {
 
     #[test]
     fn coarse_levels_average_the_fine_ones() {
-        // The box-filtered checker at a coarse texel equals the mean of the fine texels it
-        // covers (the property mip-mapping relies on).
+        // The checker at a coarse texel τ equals the mean of the pattern over the 2τ box
+        // around it (the property mip-mapping relies on).
         let m = Material::plain(0.5, 0).with(Layer::Checker {
             origin: (0.0, 0.0),
             square: 0.05,
@@ -787,9 +792,9 @@ mod tests {
             let mut mean = 0.0;
             for j in 0..n {
                 for i in 0..n {
-                    let ds = ((i as f64 + 0.5) / n as f64 - 0.5) * coarse;
-                    let dt = ((j as f64 + 0.5) / n as f64 - 0.5) * coarse;
-                    mean += m.albedo(s + ds, t + dt, coarse / n as f64);
+                    let ds = ((i as f64 + 0.5) / n as f64 - 0.5) * 2.0 * coarse;
+                    let dt = ((j as f64 + 0.5) / n as f64 - 0.5) * 2.0 * coarse;
+                    mean += m.albedo(s + ds, t + dt, 1e-9);
                 }
             }
             mean /= (n * n) as f64;

@@ -88,8 +88,7 @@ impl Builder {
 /// The geometric test world: a large textured plane `z = 0` facing `+z` (texel 0.5 mm) with a
 /// checkerboard of `columns × rows` squares of `square` metres whose lower-left corner is at
 /// the origin; its inner corners are at `(i·square, j·square, 0)` for `0 < i < columns`,
-/// `0 < j < rows`. Also a second, smaller textured plane at `z = 0.3` standing off it, so that
-/// the tests see a depth edge.
+/// `0 < j < rows`.
 pub fn checker_plane(seed: u64, square: f64, columns: usize, rows: usize) -> Scene {
     let mut b = Builder::new("checker", 0.0005, seed);
     b.scene.lighting.ambient = 1.0;
@@ -108,14 +107,6 @@ pub fn checker_plane(seed: u64, square: f64, columns: usize, rows: usize) -> Sce
                 rows,
             })
         },
-    );
-    b.rect(
-        Vector3::new(-0.45 * w, -0.45 * h, 0.3),
-        Vector3::z(),
-        0.3 * w,
-        0.3 * h,
-        recipes::NEUTRAL,
-        |seed, _, _| recipes::wallpaper(seed),
     );
     b.scene
 }
