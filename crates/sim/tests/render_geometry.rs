@@ -111,7 +111,7 @@ fn visible(scene: &Scene, camera_from_world: &Se3, xc: &Vector3<f64>) -> bool {
     ] {
         let (x, y) = (xc.x / xc.z + du / f, xc.y / xc.z + dv / f);
         match reference_depth(scene, camera_from_world, x, y) {
-            Some((_, q)) if q == 0 => {}
+            Some((_, 0)) => {}
             _ => return false,
         }
     }
