@@ -360,7 +360,7 @@ impl CameraPath for BuildingWalk {
     }
 }
 
-/// Laps of the courtyard (15 Hz in the sequences) on a rounded square 9 m inside the façades
+/// Laps of the courtyard (20 Hz in the sequences) on a rounded square 9 m inside the façades
 /// (about 81 m per lap at 1.4 m/s, counter-clockwise), each lap shifted across the path by up to
 /// ±1 m and looking outwards towards the façades by 15–40°, varying from lap to lap, so that
 /// every lap revisits the places of the others from other viewpoints.
@@ -487,7 +487,7 @@ mod tests {
         assert!(v < 2.0 && v > 1.0 && w < 2.0, "walk {v} m/s {w} rad/s");
         assert!(BuildingWalk::loop_length() > 200.0);
         let laps = CourtyardLaps::new(3);
-        let (v, w) = speeds(&laps, 15.0, 2000);
+        let (v, w) = speeds(&laps, 20.0, 2000);
         assert!(v < 2.0 && v > 1.0 && w < 1.5, "laps {v} m/s {w} rad/s");
         // The walk comes back to its start after one loop.
         let d = walk.duration();
