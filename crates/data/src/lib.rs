@@ -7,6 +7,7 @@
 //! * [`isam`]: the noise-free ground truth of iSAM's pose-graph datasets (`EDGE2`/`EDGE3`);
 //! * [`bal`]: "Bundle Adjustment in the Large" problems, plain or `.bz2`;
 //! * [`trajectory`]: TUM, KITTI and EuRoC trajectory files and timestamp association;
+//! * [`dataset_writer`]: writers of the TUM RGB-D, EuRoC MAV and KITTI odometry layouts;
 //! * [`eval`]: absolute trajectory error (after SE(3) or Sim(3) alignment, thesis eq.
 //!   5.11–5.14) and relative pose error.
 //!
@@ -16,6 +17,7 @@
 #![warn(missing_docs)]
 
 pub mod bal;
+pub mod dataset_writer;
 mod error;
 pub mod eval;
 pub mod g2o;
