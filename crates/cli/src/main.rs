@@ -8,6 +8,7 @@ mod experiment;
 mod inspect;
 mod pgo;
 mod plot;
+mod render;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
 #[derive(Parser, Debug)]
@@ -29,6 +30,8 @@ enum Command {
     /// Look at what the visual front-end sees (corners, disparity, flow, tracks, matches).
     #[command(subcommand)]
     Inspect(inspect::InspectCommand),
+    /// Render an image sequence with exact ground truth (TUM, EuRoC or KITTI layout).
+    Render(render::RenderArgs),
     /// The demo: double window optimisation on the simulated monocular double loop (thesis
     /// Figures 6.11–6.12) with cDWO and gDWO; plots and summary.json written to dwslam-demo/.
     Demo,
@@ -41,6 +44,7 @@ fn main() -> Result<()> {
         Command::Pgo(args) => pgo::run(args),
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),
+        Command::Render(args) => render::run(args),
         Command::Demo => experiment::dwo::run(experiment::dwo::DwoArgs::demo()),
     }
 }

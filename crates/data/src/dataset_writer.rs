@@ -507,6 +507,7 @@ impl EurocWriter {
 
 /// C's `%.{digits}e` (KITTI's number format): `7.070912000000e+02`.
 fn c_exp(x: f64, digits: usize) -> String {
+    let x = if x == 0.0 { 0.0 } else { x }; // no "-0.000e+00"
     let s = format!("{x:.digits$e}");
     let (mantissa, exponent) = s.split_once('e').expect("exponent form");
     let e: i32 = exponent.parse().expect("an integer exponent");
@@ -678,6 +679,7 @@ mod tests {
         assert_eq!(c_exp(707.0912, 12), "7.070912000000e+02");
         assert_eq!(c_exp(-379.8145, 12), "-3.798145000000e+02");
         assert_eq!(c_exp(0.0, 12), "0.000000000000e+00");
+        assert_eq!(c_exp(-0.0, 12), "0.000000000000e+00");
         assert_eq!(c_exp(0.1036602, 6), "1.036602e-01");
         assert_eq!(tum_depth_value(1.0), 5000);
         assert_eq!(tum_depth_value(0.0), 0);
