@@ -96,6 +96,54 @@ pub struct RenderArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Also time the front-end's kernels on the rendered (left) images, as the consumer the
+    /// renderer must keep up with: a 4-level pyramid, FAST-9 at threshold 20, the quadtree's
+    /// 300 features and pyramidal LK (21×21) from the previous frame (bench/render).
+    #[arg(long)]
+    pub frontend_timing: bool,
+}
+
+/// The grey (left) image of a frame (RGB converted with the Rec. 601 weights).
+fn grey_of(frame: &Frame) -> vision::image::GrayImage {
+    match &frame.images {
+        FrameImages::Mono(g) | FrameImages::Stereo { left: g, .. } => g.clone(),
+        FrameImages::Rgbd { rgb, .. } => rgb.map(|[r, g, b]| {
+            (0.299 * r as f32 + 0.587 * g as f32 + 0.114 * b as f32).round() as u8
+        }),
+    }
+}
+
+/// The front-end's kernels on one frame (see `--frontend-timing`): returns the pyramid and the
+/// selected features for the next frame.
+fn frontend(
+    img: &vision::image::GrayImage,
+    previous: Option<&(vision::pyramid::Pyramid, Vec<[f32; 2]>)>,
+) -> Result<(vision::pyramid::Pyramid, Vec<[f32; 2]>)> {
+    use vision::quadtree::{QuadPoint, QuadTree};
+    let params = vision::lk::LkParams::default();
+    let pyramid = vision::pyramid::Pyramid::new(img, params.levels, 8).context("pyramid")?;
+    let corners = vision::fast::fast9(
+        &pyramid.levels[0],
+        sim::render::quality::FAST_THRESHOLD,
+        true,
+    );
+    let scored = vision::fast::with_shi_tomasi(img, &corners, 3);
+    let points: Vec<QuadPoint> = scored
+        .iter()
+        .enumerate()
+        .map(|(i, c)| QuadPoint {
+            u: c.u,
+            v: c.v,
+            score: c.score,
+            index: i,
+        })
+        .collect();
+    let chosen = QuadTree::from_points(img.width() as f32, img.height() as f32, 8.0, &points)
+        .select(sim::render::quality::SELECTED, 0);
+    if let Some((prev, features)) = previous {
+        let _ = vision::lk::track(prev, &pyramid, features, None, &params);
+    }
+    Ok((pyramid, chosen.iter().map(|q| [q.u, q.v]).collect()))
 }
 
 /// Parses `WIDTHxHEIGHT`.
@@ -337,7 +385,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
         args.out.display()
     );
     let bar = crate::experiment::progress(n, "rendering");
-    let (mut render_time, mut write_time) = (Duration::ZERO, Duration::ZERO);
+    let (mut render_time, mut write_time, mut frontend_time) =
+        (Duration::ZERO, Duration::ZERO, Duration::ZERO);
+    let mut frontend_state = None;
     let start = Instant::now();
     // Rendering frame k + 1 overlaps encoding frame k (PNG encoding is single-threaded).
     let mut pending: Option<(Frame, Vector3<f64>)> = None;
@@ -368,6 +418,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
             write_time += written?;
             if let Some((frame, velocity, took)) = rendered? {
                 render_time += took;
+                if args.frontend_timing {
+                    let img = grey_of(&frame);
+                    let t0 = Instant::now();
+                    frontend_state = Some(frontend(&img, frontend_state.as_ref())?);
+                    frontend_time += t0.elapsed();
+                }
                 pending = Some((frame, velocity));
                 bar.inc(1);
             }
@@ -387,6 +443,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
         1e3 * write_time.as_secs_f64() / n as f64,
         pool.current_num_threads()
     );
+    if args.frontend_timing {
+        println!(
+            "front-end on the rendered images (pyramid, FAST, quadtree, LK of 300 features): {:.1} ms per frame; rendering / front-end = {:.2}",
+            1e3 * frontend_time.as_secs_f64() / n as f64,
+            render_time.as_secs_f64() / frontend_time.as_secs_f64()
+        );
+    }
     println!("wrote {}", args.out.display());
     Ok(())
 }

@@ -120,7 +120,7 @@ fn look(position: &Vector3<f64>, forward: &Vector3<f64>, roll: f64, shake: &Vect
 /// between twelve viewpoints, each looking at something (the bookshelf, the sofa, the desk,
 /// the door, the table top…), lap after lap around the room, alternating the direction of
 /// successive laps and sometimes turning back to the previous view, so every view is revisited
-/// many times from slightly different positions; about 0.45 m/s and 45°/s, with a hand's shake
+/// many times from slightly different positions; about 0.4 m/s and 40°/s, with a hand's shake
 /// (3 mm, 0.3°) and a slow roll (±4°). The gaze is interpolated in yaw and pitch (unwrapped), so
 /// it turns the short way between views.
 #[derive(Debug, Clone, PartialEq)]
@@ -141,12 +141,12 @@ pub const ROOM_VIEWS: [([f64; 3], [f64; 3]); 12] = [
     ([1.6, 1.5, 1.6], [0.2, 1.0, 1.3]),
     ([2.1, 1.2, 1.5], [2.0, 0.0, 1.1]),
     ([3.1, 1.25, 1.7], [3.0, 2.5, 0.8]),
-    ([3.6, 1.2, 1.6], [4.5, 0.4, 1.2]),
+    ([3.4, 1.7, 1.6], [3.7, 0.0, 1.3]),
     ([4.5, 1.4, 1.5], [6.0, 1.0, 1.3]),
     ([4.6, 2.5, 1.5], [6.0, 2.5, 1.1]),
     ([4.5, 3.6, 1.6], [6.0, 4.3, 1.2]),
     ([4.0, 3.9, 1.5], [5.1, 5.0, 1.2]),
-    ([3.0, 3.9, 1.6], [2.5, 5.0, 1.0]),
+    ([3.0, 3.7, 1.65], [2.6, 5.0, 1.1]),
     ([1.7, 3.8, 1.5], [0.6, 4.6, 0.9]),
     ([1.5, 3.1, 1.7], [3.0, 2.5, 0.8]),
 ];
@@ -154,8 +154,8 @@ pub const ROOM_VIEWS: [([f64; 3], [f64; 3]); 12] = [
 impl RoomBrowse {
     /// The browsing path of `seed`, planned for `duration` seconds (it holds still beyond).
     pub fn new(seed: u64, duration: f64) -> Self {
-        let speed = 0.45;
-        let turn_rate = 45f64.to_radians();
+        let speed = 0.4;
+        let turn_rate = 40f64.to_radians();
         let n = ROOM_VIEWS.len();
         let jitter = |h: u64, s: f64| {
             Vector3::new(

@@ -93,6 +93,8 @@ pub struct ViewOptions {
     pub supersampling: usize,
     /// Colour radiance (else grey: radiance times the tint's luma, in channel 0).
     pub colour: bool,
+    /// Fill [`Pixel::depth`] and [`Pixel::cos_incidence`] (else they stay 0).
+    pub depth: bool,
 }
 
 struct Prepared {
@@ -288,11 +290,16 @@ fn overlap(poly: &[[f64; 2]], rect: &[[f64; 2]; 4]) -> Option<bool> {
 
 impl Prepared {
     #[inline(always)]
-    fn cast(&self, tile: usize, x: f64, y: f64) -> Hit {
+    fn cast(&self, tile: usize, x: f64, y: f64) -> u32 {
+        // Division-free: with n·d < 0 and h < 0 (the front side), z = h/(n·d) > 0 and every
+        // test on z, s and t is multiplied through by n·d (flipping the inequalities); the
+        // nearest hit so far is kept as the fraction (h_b, nd_b).
         let (a, b) = (self.offsets[tile] as usize, self.offsets[tile + 1] as usize);
-        let mut best = MISS;
+        let (mut best, mut h_b, mut nd_b) = (NO_HIT, -1.0, -0.0);
         for c in &self.cands[a..b] {
-            if c.min_z >= best.z {
+            // Candidates are sorted by their lowest depth over the tile: stop once it is
+            // beyond the nearest hit (c.min_z ≥ h_b/nd_b).
+            if best != NO_HIT && c.min_z * nd_b <= h_b {
                 break;
             }
             let q = &self.quads[c.quad as usize];
@@ -300,26 +307,22 @@ impl Prepared {
             if nd >= 0.0 {
                 continue;
             }
-            let inv_nd = 1.0 / nd;
-            let z = q.h * inv_nd;
-            if z >= best.z || z < NEAR {
+            // z ≥ NEAR, and nearer than the best: h/nd < h_b/nd_b ⟺ h·nd_b < h_b·nd.
+            if q.h > NEAR * nd || (best != NO_HIT && q.h * nd_b >= h_b * nd) {
                 continue;
             }
-            let s = z * dot(&q.a, x, y) - q.oa;
-            if !(-EDGE_EPS..=q.w + EDGE_EPS).contains(&s) {
+            // s = h·(a·d)/nd − a·o ∈ [−ε, w + ε].
+            let sa = q.h * dot(&q.a, x, y);
+            if sa > nd * (q.oa - EDGE_EPS) || sa < nd * (q.oa + q.w + EDGE_EPS) {
                 continue;
             }
-            let t = z * dot(&q.b, x, y) - q.ob;
-            if !(-EDGE_EPS..=q.hgt + EDGE_EPS).contains(&t) {
+            let tb = q.h * dot(&q.b, x, y);
+            if tb > nd * (q.ob - EDGE_EPS) || tb < nd * (q.ob + q.hgt + EDGE_EPS) {
                 continue;
             }
-            best = Hit {
-                quad: c.quad,
-                z,
-                inv_nd,
-                s,
-                t,
-            };
+            best = c.quad;
+            h_b = q.h;
+            nd_b = nd;
         }
         best
     }
@@ -434,7 +437,7 @@ pub(crate) fn render_view(
                     ids[(v - h0) * w + u] = if sole != NO_HIT {
                         sole
                     } else {
-                        prep.cast(tile, c[0], c[1]).quad
+                        prep.cast(tile, c[0], c[1])
                     };
                 }
             }
@@ -443,24 +446,56 @@ pub(crate) fn render_view(
                 let u1 = (u0 + TILE_PX).min(w);
                 let tile = band * rays.tiles.0 + u0 / TILE_PX;
                 let sole = prep.sole[tile];
-                // A tile covered by one quad: its mip level is interpolated bilinearly from the
-                // tile's corners (λ is the logarithm of a smooth function of the pixel; the
-                // interpolation error is far below the level blending's resolution), and only
-                // its border pixels can be edges.
-                let corner_lambda = (sole != NO_HIT).then(|| {
-                    let at = |u: usize, v: usize, du: f64, dv: f64| {
-                        let (c, j) = (rays.centre[v * w + u], &rays.jacobian[v * w + u]);
-                        let (x, y) = (c[0] + j[0] * du + j[1] * dv, c[1] + j[2] * du + j[3] * dv);
-                        level(&prep.hit_on(sole, x, y), x, y, j, 1.0)
-                    };
-                    [
-                        at(u0, r0, -0.5, -0.5),
-                        at(u1 - 1, r0, 0.5, -0.5),
-                        at(u0, r1 - 1, -0.5, 0.5),
-                        at(u1 - 1, r1 - 1, 0.5, 0.5),
-                    ]
-                });
+                // The mip level λ of each quad of the tile is interpolated bilinearly from its
+                // values at the tile's corners (λ is the logarithm of a smooth function of the
+                // pixel; the interpolation error is far below the level blending's resolution)
+                // unless the quad's plane is seen edge-on within the tile (a corner ray misses
+                // its front, or λ changes by more than two levels across the tile), where it is
+                // computed per pixel. In a tile covered by one quad only the border pixels can
+                // be edges.
+                let (ca, cb) = (prep.offsets[tile] as usize, prep.offsets[tile + 1] as usize);
+                let mut corner_lambda = [(NO_HIT, [0.0f64; 4]); 16];
+                let n_corner = (cb - ca).min(16);
+                let corner_ray = |u: usize, v: usize, du: f64, dv: f64| {
+                    let (c, j) = (rays.centre[v * w + u], &rays.jacobian[v * w + u]);
+                    (
+                        c[0] + j[0] * du + j[1] * dv,
+                        c[1] + j[2] * du + j[3] * dv,
+                        *j,
+                    )
+                };
+                let corners = [
+                    corner_ray(u0, r0, -0.5, -0.5),
+                    corner_ray(u1 - 1, r0, 0.5, -0.5),
+                    corner_ray(u0, r1 - 1, -0.5, 0.5),
+                    corner_ray(u1 - 1, r1 - 1, 0.5, 0.5),
+                ];
+                for (slot, cand) in corner_lambda.iter_mut().zip(&prep.cands[ca..ca + n_corner]) {
+                    let q = &prep.quads[cand.quad as usize];
+                    if corners.iter().any(|(x, y, _)| dot(&q.n, *x, *y) >= 0.0) {
+                        continue;
+                    }
+                    let l = corners
+                        .map(|(x, y, j)| level(&prep.hit_on(cand.quad, x, y), x, y, &j, 1.0));
+                    let (lo, hi) = l
+                        .iter()
+                        .fold((f64::INFINITY, -f64::INFINITY), |(a, b), &x| {
+                            (a.min(x), b.max(x))
+                        });
+                    if hi - lo <= 2.0 {
+                        *slot = (cand.quad, l);
+                    }
+                }
                 let (inv_tw, inv_th) = (1.0 / (u1 - u0) as f64, 1.0 / (r1 - r0) as f64);
+                let lambda_at = |id: u32, u: usize, v: usize| -> Option<f64> {
+                    let l = corner_lambda[..n_corner].iter().find(|c| c.0 == id)?.1;
+                    let a = ((u - u0) as f64 + 0.5) * inv_tw;
+                    let b = ((v - r0) as f64 + 0.5) * inv_th;
+                    Some(
+                        (1.0 - b) * ((1.0 - a) * l[0] + a * l[1])
+                            + b * ((1.0 - a) * l[2] + a * l[3]),
+                    )
+                };
                 for v in r0..r1 {
                     for u in u0..u1 {
                         let idx = v * w + u;
@@ -468,27 +503,8 @@ pub(crate) fn render_view(
                         let j = &rays.jacobian[idx];
                         let id = ids[(v - h0) * w + u];
                         let hit = prep.hit_on(id, c[0], c[1]);
-                        if let Some(l) = corner_lambda
-                            && u > u0
-                            && u + 1 < u1
-                            && v > r0
-                            && v + 1 < r1
-                        {
-                            let a = (u - u0) as f64 * inv_tw + 0.5 * inv_tw;
-                            let b = (v - r0) as f64 * inv_th + 0.5 * inv_th;
-                            let lambda = (1.0 - b) * ((1.0 - a) * l[0] + a * l[1])
-                                + b * ((1.0 - a) * l[2] + a * l[3]);
-                            let q = prep.quads[id as usize].id as usize;
-                            let value = sampler.sample_level(q, hit.s, hit.t, lambda);
-                            let t = &tint[id as usize];
-                            let px = &mut chunk[(v - r0) * w + u];
-                            px.radiance = [value * t[0], value * t[1], value * t[2]];
-                            px.depth = hit.z as f32;
-                            px.cos_incidence = (-1.0
-                                / (hit.inv_nd * (c[0] * c[0] + c[1] * c[1] + 1.0).sqrt()))
-                                as f32;
-                            continue;
-                        }
+                        let interior =
+                            sole != NO_HIT && u > u0 && u + 1 < u1 && v > r0 && v + 1 < r1;
                         // An edge pixel: a neighbour's centre meets another quad (neighbours
                         // outside the image are clamped to the pixel itself).
                         let (ul, ur) = (u.saturating_sub(1), (u + 1).min(w - 1));
@@ -497,16 +513,25 @@ pub(crate) fn render_view(
                             (v - h0) * w,
                             ((v + 1).min(h1 - 1) - h0) * w,
                         );
-                        let edge = ids[ra + ul] != id
-                            || ids[ra + u] != id
-                            || ids[ra + ur] != id
-                            || ids[rb + ul] != id
-                            || ids[rb + ur] != id
-                            || ids[rc + ul] != id
-                            || ids[rc + u] != id
-                            || ids[rc + ur] != id;
+                        let edge = !interior
+                            && (ids[ra + ul] != id
+                                || ids[ra + u] != id
+                                || ids[ra + ur] != id
+                                || ids[rb + ul] != id
+                                || ids[rb + ur] != id
+                                || ids[rc + ul] != id
+                                || ids[rc + u] != id
+                                || ids[rc + ur] != id);
                         let radiance = if !edge || ss == 1 {
-                            shade(&mut sampler, &hit, c[0], c[1], j, 1.0)
+                            match (id != NO_HIT).then(|| lambda_at(id, u, v)).flatten() {
+                                Some(lambda) => {
+                                    let q = prep.quads[id as usize].id as usize;
+                                    let value = sampler.sample_level(q, hit.s, hit.t, lambda);
+                                    let t = &tint[id as usize];
+                                    [value * t[0], value * t[1], value * t[2]]
+                                }
+                                None => shade(&mut sampler, &hit, c[0], c[1], j, 1.0),
+                            }
                         } else {
                             // Coverage from S×S rays, shading once per quad met (at the mean of its
                             // rays, with the pixel's footprint) — multisampling.
@@ -520,7 +545,7 @@ pub(crate) fn render_view(
                                     let du = (si as f64 + 0.5) * inv - 0.5;
                                     let x = c[0] + j[0] * du + j[1] * dv;
                                     let y = c[1] + j[2] * du + j[3] * dv;
-                                    let q = prep.cast(tile, x, y).quad;
+                                    let q = prep.cast(tile, x, y);
                                     let g = match groups[..n_groups].iter().position(|g| g.0 == q) {
                                         Some(g) => g,
                                         None => {
@@ -549,7 +574,7 @@ pub(crate) fn render_view(
                         };
                         let px = &mut chunk[(v - r0) * w + u];
                         px.radiance = radiance;
-                        if hit.quad != NO_HIT {
+                        if opts.depth && hit.quad != NO_HIT {
                             px.depth = hit.z as f32;
                             let q = &prep.quads[hit.quad as usize];
                             let nd = dot(&q.n, c[0], c[1]);

@@ -141,6 +141,7 @@ pub fn capture(
     let opts = ViewOptions {
         supersampling: sensor.supersampling,
         colour,
+        depth: colour,
     };
     let (steps, exposure) = sensor
         .motion_blur

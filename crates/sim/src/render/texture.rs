@@ -368,7 +368,7 @@ fn scatter(
     };
     let r_max = match kind {
         Shape::Rect => ha.max(hb),
-        _ => ha.hypot(hb).min(0.5 * cell),
+        _ => (ha * ha + hb * hb).sqrt().min(0.5 * cell),
     };
     // Centre jittered so that the shape stays inside its cell.
     let free = (0.5 * cell - r_max).max(0.0);
@@ -384,9 +384,9 @@ fn scatter(
             let (ra, rb) = (ha.min(r_max * 0.7), hb.min(r_max * 0.7));
             rect_aa(u, w, -ra, -rb, ra, rb, texel)
         }
-        Shape::Disc => smooth_step_aa(r_max - dx.hypot(dy), texel),
+        Shape::Disc => smooth_step_aa(r_max - (dx * dx + dy * dy).sqrt(), texel),
         Shape::Ring | Shape::Mixed => {
-            let d = dx.hypot(dy);
+            let d = (dx * dx + dy * dy).sqrt();
             smooth_step_aa(r_max - d, texel) * smooth_step_aa(d - 0.55 * r_max, texel)
         }
     };
@@ -565,7 +565,7 @@ fn pictures(
         let r = range(hash1(hk, 3), 0.05, 0.3) * pw.min(ph);
         let val = range(hash1(hk, 4), 0.0, 1.0);
         let c = if hk.is_multiple_of(2) {
-            smooth_step_aa(r - (x - cx).hypot(y - cy), texel)
+            smooth_step_aa(r - ((x - cx).powi(2) + (y - cy).powi(2)).sqrt(), texel)
         } else {
             rect_aa(x, y, cx - r, cy - 0.6 * r, cx + r, cy + 0.6 * r, texel)
         };
@@ -715,7 +715,7 @@ fn cobbles(
             let h = hash2(seed, ix + dx, iy + dy);
             let px = (ix + dx) as f64 + 0.15 + 0.7 * unit(h);
             let py = (iy + dy) as f64 + 0.15 + 0.7 * unit(hash1(h, 1));
-            let d = (x - px).hypot(y - py);
+            let d = ((x - px).powi(2) + (y - py).powi(2)).sqrt();
             if d < d1 {
                 d2 = d1;
                 d1 = d;

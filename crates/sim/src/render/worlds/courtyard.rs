@@ -18,10 +18,22 @@ fn v(x: f64, y: f64, z: f64) -> Vector3<f64> {
 }
 
 fn facade(seed: u64, w: f64, h: f64, kind: u64) -> Material {
+    // Brick; pre-cast concrete panels; or rendered (plaster) walls with rusticated joints.
+    let panels = |m: Material, pitch: (f64, f64)| {
+        m.with(Layer::Grid {
+            pitch_s: pitch.0,
+            pitch_t: pitch.1,
+            joint: 0.025,
+            joint_value: 0.2,
+            cell_variation: 0.08,
+            row_offset: 0.5,
+            random_length: false,
+        })
+    };
     let base = match kind % 3 {
         0 => recipes::brick(seed),
-        1 => recipes::concrete(seed),
-        _ => recipes::plaster(seed),
+        1 => panels(recipes::concrete(seed), (1.5, 0.75)),
+        _ => panels(recipes::plaster(seed), (0.9, 0.45)),
     };
     let storey = range(hash1(seed, 50), 3.0, 3.6);
     let bay = range(hash1(seed, 51), 2.4, 3.6);
@@ -165,7 +177,8 @@ pub fn courtyard(seed: u64) -> Scene {
         NEUTRAL,
         |s, _, _, _| Some(recipes::concrete(s)),
     );
-    // Trees between the path and the façades, benches and lamp posts by the path.
+    // Trees between the path and the façades; benches and lamp posts on the tiled ring around
+    // the lawn, at least 1.9 m from where the laps walk.
     for (x, y) in [
         (-15.0, -15.0),
         (15.0, -15.0),
@@ -188,10 +201,10 @@ pub fn courtyard(seed: u64) -> Scene {
         );
     }
     for (x, y, along_x) in [
-        (-4.0, -9.6, true),
-        (4.0, 9.6, true),
-        (-9.6, 3.0, false),
-        (9.6, -3.0, false),
+        (-4.0, -8.6, true),
+        (4.0, 8.6, true),
+        (-8.6, 3.0, false),
+        (8.6, -3.0, false),
     ] {
         let (hx, hy) = if along_x { (0.9, 0.25) } else { (0.25, 0.9) };
         b.solid(
@@ -202,12 +215,12 @@ pub fn courtyard(seed: u64) -> Scene {
         );
     }
     for (x, y) in [
-        (-9.5, -9.5),
-        (9.5, -9.5),
-        (9.5, 9.5),
-        (-9.5, 9.5),
-        (0.0, -9.5),
-        (0.0, 9.5),
+        (-8.7, -8.7),
+        (8.7, -8.7),
+        (8.7, 8.7),
+        (-8.7, 8.7),
+        (0.0, -8.7),
+        (0.0, 8.7),
     ] {
         b.solid(
             v(x - 0.06, y - 0.06, 0.0),

@@ -31,7 +31,7 @@ fn noise(amplitude: f64, largest: f64, smallest: f64, gain: f64) -> Layer {
 /// Painted plaster: weakly textured (low-contrast noise) with sparse small marks.
 pub fn plaster(seed: u64) -> Material {
     Material::plain(r(seed, 0, 0.6, 0.8), seed)
-        .with(noise(0.05, 1.5, 0.003, 0.55))
+        .with(noise(0.05, 0.8, 0.003, 0.55))
         .with(Layer::Scatter {
             cell: 0.25,
             density: 0.25,
@@ -47,7 +47,7 @@ pub fn plaster(seed: u64) -> Material {
 pub fn wallpaper(seed: u64) -> Material {
     let cell = r(seed, 0, 0.08, 0.16);
     Material::plain(r(seed, 1, 0.5, 0.7), seed)
-        .with(noise(0.08, 1.0, 0.003, 0.6))
+        .with(noise(0.08, 0.8, 0.003, 0.6))
         .with(Layer::Scatter {
             cell,
             density: r(seed, 2, 0.6, 0.9),
@@ -119,7 +119,7 @@ pub fn tiles(seed: u64, size: f64) -> Material {
             shape: Shape::Disc,
             angle: 0.3,
         })
-        .with(noise(0.06, 2.0, 0.003, 0.5))
+        .with(noise(0.06, 0.8, 0.003, 0.5))
 }
 
 /// A patterned rug: large checked motifs, scattered ornaments, a border.
@@ -185,17 +185,17 @@ pub fn books(seed: u64, height: f64) -> Material {
         .with(noise(0.05, 0.2, 0.002, 0.6))
 }
 
-/// Cardboard with a printed label and packing tape.
+/// Cardboard with packing tape, a printed label and printed symbols, and a handwritten note.
 pub fn cardboard(seed: u64, w: f64, h: f64) -> Material {
     let (lx, ly) = (r(seed, 0, 0.1, 0.5) * w, r(seed, 1, 0.1, 0.5) * h);
     let (lw, lh) = (r(seed, 2, 0.25, 0.45) * w, r(seed, 3, 0.2, 0.4) * h);
     Material::plain(r(seed, 4, 0.45, 0.6), seed)
         .with(Layer::Noise {
-            amplitude: 0.06,
+            amplitude: 0.1,
             largest: 0.3,
             smallest: 0.002,
-            gain: 0.7,
-            stretch: (1.0, 0.1),
+            gain: 0.75,
+            stretch: (1.0, 0.2),
         })
         .with(Layer::Panel {
             region: (0.0, 0.45 * h, w, 0.55 * h),
@@ -212,9 +212,14 @@ pub fn cardboard(seed: u64, w: f64, h: f64) -> Material {
             row_height: r(seed, 5, 0.008, 0.02),
             ink: 0.05,
         })
+        .with(Layer::Text {
+            region: (0.05 * w, 0.6 * h, 0.7 * w, 0.95 * h),
+            row_height: r(seed, 6, 0.02, 0.04),
+            ink: 0.15,
+        })
         .with(Layer::Scatter {
-            cell: 0.15,
-            density: 0.3,
+            cell: 0.1,
+            density: 0.5,
             size: (0.15, 0.4),
             values: (0.05, 0.2),
             opacity: 0.9,
@@ -318,13 +323,23 @@ pub fn door(seed: u64, w: f64, h: f64) -> Material {
             angle: 0.0,
         })
         .with(Layer::Panel {
-            region: (0.12 * w, 0.1 * h, 0.88 * w, 0.45 * h),
-            value: base * 0.8,
+            region: (0.1 * w, 0.08 * h, 0.9 * w, 0.47 * h),
+            value: base * 0.55,
             opacity: 1.0,
         })
         .with(Layer::Panel {
-            region: (0.12 * w, 0.52 * h, 0.88 * w, 0.9 * h),
-            value: base * 0.8,
+            region: (0.13 * w, 0.1 * h, 0.87 * w, 0.45 * h),
+            value: base * 0.85,
+            opacity: 1.0,
+        })
+        .with(Layer::Panel {
+            region: (0.1 * w, 0.5 * h, 0.9 * w, 0.92 * h),
+            value: base * 0.55,
+            opacity: 1.0,
+        })
+        .with(Layer::Panel {
+            region: (0.13 * w, 0.52 * h, 0.87 * w, 0.9 * h),
+            value: base * 0.85,
             opacity: 1.0,
         })
         .with(Layer::Panel {
@@ -356,7 +371,7 @@ pub fn brick(seed: u64) -> Material {
             row_offset: 0.5,
             random_length: false,
         })
-        .with(noise(0.1, 3.0, 0.003, 0.7))
+        .with(noise(0.1, 0.8, 0.003, 0.7))
         .with(Layer::Scatter {
             cell: 0.03,
             density: 0.35,
@@ -371,7 +386,7 @@ pub fn brick(seed: u64) -> Material {
 /// Concrete: mottled, with pores and stains.
 pub fn concrete(seed: u64) -> Material {
     Material::plain(r(seed, 0, 0.45, 0.65), seed)
-        .with(noise(0.12, 3.0, 0.003, 0.6))
+        .with(noise(0.12, 0.8, 0.003, 0.6))
         .with(Layer::Scatter {
             cell: 0.04,
             density: 0.4,
@@ -400,13 +415,13 @@ pub fn cobbles(seed: u64) -> Material {
             joint: 0.012,
             variation: 0.15,
         })
-        .with(noise(0.06, 4.0, 0.004, 0.6))
+        .with(noise(0.06, 0.8, 0.004, 0.6))
 }
 
 /// Grass: fine high-contrast noise and blades.
 pub fn grass(seed: u64) -> Material {
     Material::plain(0.35, seed)
-        .with(noise(0.3, 1.0, 0.003, 0.8))
+        .with(noise(0.3, 0.8, 0.003, 0.8))
         .with(Layer::Scatter {
             cell: 0.02,
             density: 0.6,
@@ -434,17 +449,27 @@ pub fn screen(seed: u64, w: f64, h: f64) -> Material {
         .emissive(0.15)
 }
 
-/// Painted metal or plastic: nearly uniform (weakly textured), with a few scratches.
+/// Painted metal or plastic: nearly uniform (weakly textured) with a little speckle, scratches
+/// and stickers.
 pub fn painted(seed: u64) -> Material {
     Material::plain(r(seed, 0, 0.3, 0.8), seed)
         .with(noise(0.03, 0.5, 0.003, 0.5))
         .with(Layer::Scatter {
-            cell: 0.2,
+            cell: 0.03,
             density: 0.3,
-            size: (0.02, 0.1),
-            values: (0.1, 0.9),
-            opacity: 0.5,
-            shape: Shape::RotatedRect,
+            size: (0.1, 0.3),
+            values: (0.2, 0.7),
+            opacity: 0.4,
+            shape: Shape::Disc,
+            angle: 0.5,
+        })
+        .with(Layer::Scatter {
+            cell: 0.2,
+            density: 0.4,
+            size: (0.05, 0.3),
+            values: (0.0, 1.0),
+            opacity: 0.8,
+            shape: Shape::Mixed,
             angle: 0.0,
         })
 }
@@ -476,7 +501,7 @@ pub fn window_pane(seed: u64, w: f64, h: f64) -> Material {
             shape: Shape::Disc,
             angle: 0.3,
         })
-        .with(noise(0.06, 1.0, 0.005, 0.6))
+        .with(noise(0.06, 0.8, 0.005, 0.6))
         .with(Layer::Grid {
             pitch_s: w / 2.0,
             pitch_t: h / 3.0,
@@ -492,7 +517,7 @@ pub fn window_pane(seed: u64, w: f64, h: f64) -> Material {
 /// Leaves of a tree canopy: dense high-contrast blobs at several scales.
 pub fn foliage(seed: u64) -> Material {
     Material::plain(0.3, seed)
-        .with(noise(0.25, 2.0, 0.005, 0.7))
+        .with(noise(0.25, 0.8, 0.005, 0.7))
         .with(Layer::Scatter {
             cell: 0.12,
             density: 0.9,

@@ -33,7 +33,7 @@ pub fn room(seed: u64) -> Scene {
             Some(match face {
                 Face::MinX => recipes::wallpaper(wall_seeds[0]),
                 Face::MaxX => recipes::brick(wall_seeds[1]),
-                Face::MinY => recipes::plaster(wall_seeds[2]),
+                Face::MinY => recipes::wallpaper(wall_seeds[2]),
                 Face::MaxY => recipes::wallpaper(wall_seeds[3]),
                 Face::MinZ => recipes::planks(wall_seeds[4]),
                 Face::MaxZ => recipes::ceiling(wall_seeds[5]),
@@ -173,6 +173,22 @@ pub fn room(seed: u64) -> Scene {
             _ => recipes::planks(s),
         })
     });
+    b.rect(
+        v(1.9, 4.45 - eps, 0.25),
+        n,
+        0.55,
+        0.5,
+        NEUTRAL,
+        recipes::poster,
+    );
+    b.rect(
+        v(2.9, 4.45 - eps, 0.3),
+        n,
+        0.4,
+        0.45,
+        NEUTRAL,
+        recipes::pinboard,
+    );
     b.solid(
         v(1.7, 4.6, 0.9),
         v(2.2, 4.95, 1.25),
@@ -319,11 +335,8 @@ pub fn room(seed: u64) -> Scene {
             })
         },
     );
-    b.solid(v(3.9, 0.0, 0.0), v(5.1, 0.6, 2.0), wood, |s, f, w, h| {
-        Some(match f {
-            Face::MaxY => recipes::door(s, w, h),
-            _ => recipes::planks(s),
-        })
+    b.solid(v(3.9, 0.0, 0.0), v(5.1, 0.6, 2.0), wood, |s, _, _, _| {
+        Some(recipes::planks(s))
     });
     b.rect(
         v(4.95, 0.6 + eps, 1.0),
@@ -340,6 +353,39 @@ pub fn room(seed: u64) -> Scene {
         0.5,
         NEUTRAL,
         recipes::pinboard,
+    );
+    // The wardrobe's doors are covered in posters, drawings and a calendar.
+    b.rect(
+        v(4.95, 0.6 + eps, 0.15),
+        s_,
+        0.5,
+        0.7,
+        NEUTRAL,
+        recipes::poster,
+    );
+    b.rect(
+        v(4.35, 0.6 + eps, 0.2),
+        s_,
+        0.35,
+        0.55,
+        NEUTRAL,
+        recipes::pinboard,
+    );
+    b.rect(
+        v(4.4, 0.6 + eps, 1.8),
+        s_,
+        0.4,
+        0.15,
+        NEUTRAL,
+        recipes::poster,
+    );
+    b.rect(
+        v(4.05, 0.6 + eps, 0.85),
+        s_,
+        0.1,
+        0.3,
+        NEUTRAL,
+        |s, _, _| recipes::painted(s),
     );
     b.solid(
         v(4.0, 0.1, 2.0),
