@@ -2,7 +2,8 @@
 # bench/pgo: every pose graph of ../shared/data/pose_graph_g2o through dwslam, GTSAM and g2o in
 # one run, single-threaded (each process pinned to one CPU with taskset), and a markdown table.
 #
-#   bench/pgo/run.sh [DATASET ...]        (default: all 12; names without .g2o)
+#   bench/pgo/run.sh [DATASET ...]        (default: all 12; names without .g2o, or paths to .g2o
+#                                           files, e.g. from make_non_pd.py; see non_pd.sh)
 #
 # Outputs go to out/pgo/ (gitignored): NAME.init.g2o (the file completed with dwslam's initial
 # poses, which the peers read so all three start from the same poses), NAME.{dwslam,gtsam,g2o}.json
@@ -46,8 +47,15 @@ declare -A GROUND_TRUTH=(
   [M3500]=manhattanOlson3500_groundtruth.txt
 )
 
+NAMES=()
 for name in "${DATASETS[@]}"; do
-  src="$DATA/pose_graph_g2o/$name.g2o"
+  if [[ "$name" == *.g2o ]]; then
+    src="$name"
+    name=$(basename "$name" .g2o)
+  else
+    src="$DATA/pose_graph_g2o/$name.g2o"
+  fi
+  NAMES+=("$name")
   echo "== $name" >&2
   target/release/examples/g2o_complete "$src" "$OUT/$name.init.g2o" > "$OUT/$name.init.json"
   rm -f "$OUT/$name.dwslam.json" "$OUT/$name".*.rmse.json
@@ -69,4 +77,4 @@ for name in "${DATASETS[@]}"; do
     done
   fi
 done
-python3 bench/pgo/table.py "$OUT" "${DATASETS[@]}" | tee "$OUT/table.md"
+python3 bench/pgo/table.py "$OUT" "${NAMES[@]}" | tee "$OUT/table.md"

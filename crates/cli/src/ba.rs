@@ -1,12 +1,14 @@
 //! `dwslam ba`: bundle adjustment of a BAL problem (thesis §3.3), or of a synthetic scene.
 
+use crate::args;
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use data::bal::{BalProblem, read_bal, write_bal};
 use lsq::{LinearSolver, SolverOptions};
 use nalgebra::Vector2;
 use sim::ba_scene::{CircleSceneParams, circle_scene, perturb, to_bal};
-use slam::ba::{BalAdjustment, BalCameraState};
+use slam::ba::BalAdjustment;
+use slam::factors::BalCameraState;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -63,6 +65,9 @@ pub struct BaArgs {
     /// Huber kernel of this width in pixels (default: plain least squares).
     #[arg(long)]
     pub huber: Option<f64>,
+    /// Write the optimised problem here (BAL format: cameras and points at the optimum).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
     /// Write a machine-readable summary here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -90,35 +95,50 @@ fn parse_synthetic(spec: &str) -> Result<(usize, usize)> {
     Ok((cameras, points))
 }
 
-/// CPU time (user + system) consumed by this process so far, from `/proc/self/stat` (Linux);
-/// `None` elsewhere. Unlike wall time it is barely affected by other processes on a shared
-/// machine, so single-threaded benchmark ratios use it.
-pub fn process_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which is parenthesised and may contain spaces).
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of the full line: 12 and 13 after the name.
-    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
-    // Clock ticks per second: 100 on every Linux configuration in use (USER_HZ).
-    Some(ticks / 100.0)
-}
-
 /// Entry point of `dwslam ba`.
 pub fn run(args: BaArgs) -> Result<()> {
-    let start = Instant::now();
-    let (problem, name): (BalProblem, String) = match (&args.file, &args.synthetic) {
+    // Everything the command line says is checked before any work.
+    let synthetic = match (&args.file, &args.synthetic) {
         (Some(_), Some(_)) => bail!("give either a BAL file or --synthetic, not both"),
         (None, None) => bail!("give a BAL file or --synthetic CAMERAS,POINTS"),
-        (Some(file), None) => (
-            read_bal(file).with_context(|| format!("reading {}", file.display()))?,
-            file.display().to_string(),
-        ),
-        (None, Some(spec)) => {
-            let (cameras, points) = parse_synthetic(spec)?;
-            if !(args.noise.is_finite() && args.noise >= 0.0) {
-                bail!("--noise must be a non-negative number");
-            }
+        (Some(file), None) => {
+            args::input_file(file, "BAL file")?;
+            None
+        }
+        (None, Some(spec)) => Some(parse_synthetic(spec)?),
+    };
+    if !(args.noise.is_finite() && args.noise >= 0.0) {
+        bail!("--noise must be a non-negative number (got {})", args.noise);
+    }
+    let kernel = match args.huber {
+        Some(b) if b.is_finite() && b > 0.0 => Some(lsq::RobustKernel::Huber(b)),
+        Some(b) => bail!("--huber must be a positive width, got {b}"),
+        None => None,
+    };
+    anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1");
+    anyhow::ensure!(
+        args.pcg_tolerance > 0.0 && args.pcg_tolerance < 1.0,
+        "--pcg-tolerance must lie in (0, 1) (got {})",
+        args.pcg_tolerance
+    );
+    anyhow::ensure!(
+        args.function_tolerance.is_finite() && args.function_tolerance >= 0.0,
+        "--function-tolerance must be a non-negative number (got {})",
+        args.function_tolerance
+    );
+    for (path, what) in [
+        (&args.save_problem, "--save-problem"),
+        (&args.out, "--out"),
+        (&args.json, "--json"),
+    ] {
+        if let Some(p) = path {
+            args::output_file(p, what)?;
+        }
+    }
+    let start = Instant::now();
+    let (mut problem, name): (BalProblem, String) = match (&args.file, synthetic) {
+        (Some(file), _) => (read_bal(file)?, file.display().to_string()),
+        (None, Some((cameras, points))) => {
             let scene = circle_scene(&CircleSceneParams {
                 cameras,
                 points,
@@ -135,6 +155,7 @@ pub fn run(args: BaArgs) -> Result<()> {
                 ),
             )
         }
+        (None, None) => unreachable!("checked above"),
     };
     if let Some(path) = &args.save_problem {
         write_bal(&problem, path).with_context(|| format!("writing {}", path.display()))?;
@@ -153,11 +174,6 @@ pub fn run(args: BaArgs) -> Result<()> {
         .iter()
         .map(|o| (o.camera, o.point, o.measurement))
         .collect();
-    let kernel = match args.huber {
-        Some(b) if b.is_finite() && b > 0.0 => Some(lsq::RobustKernel::Huber(b)),
-        Some(b) => bail!("--huber must be a positive width, got {b}"),
-        None => None,
-    };
     let mut ba = BalAdjustment::new(&cameras, &problem.points_world, &observations, kernel)?;
     println!(
         "{name}: {} cameras, {} points, {} observations",
@@ -211,7 +227,7 @@ pub fn run(args: BaArgs) -> Result<()> {
         );
     }
     let quiet = args.quiet;
-    let cpu_before = process_cpu_seconds();
+    let cpu_before = slam::clock::process_cpu_time().map(|t| t.as_secs_f64());
     let summary = ba.problem.optimise_with(&options, |it| {
         if !quiet {
             println!(
@@ -229,7 +245,10 @@ pub fn run(args: BaArgs) -> Result<()> {
             );
         }
     })?;
-    let cpu_seconds = match (cpu_before, process_cpu_seconds()) {
+    let cpu_seconds = match (
+        cpu_before,
+        slam::clock::process_cpu_time().map(|t| t.as_secs_f64()),
+    ) {
         (Some(a), Some(b)) => Some(b - a),
         _ => None,
     };
@@ -271,6 +290,18 @@ pub fn run(args: BaArgs) -> Result<()> {
         summary.time_structure.as_secs_f64(),
         start.elapsed().as_secs_f64()
     );
+    if let Some(path) = &args.out {
+        for (c, v) in problem.cameras.iter_mut().zip(&ba.cameras) {
+            let state = ba.problem.value(*v);
+            c.camera_from_world = state.camera_from_world;
+            c.intrinsics = state.intrinsics;
+        }
+        for (p, v) in problem.points_world.iter_mut().zip(&ba.points) {
+            *p = *ba.problem.value(*v);
+        }
+        write_bal(&problem, path).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote the optimised problem to {}", path.display());
+    }
     if let Some(path) = &args.json {
         let json = serde_json::json!({
             "problem": name,

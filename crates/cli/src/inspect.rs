@@ -1,5 +1,6 @@
 //! `dwslam inspect …`: pictures of what the visual front-end sees (issue 8, item 9).
 
+use crate::args;
 use anyhow::{Context, Result, bail};
 use clap::Subcommand;
 use std::path::{Path, PathBuf};
@@ -92,8 +93,89 @@ pub enum InspectCommand {
     },
 }
 
+/// Checks an inspect command's arguments before any work: the inputs exist, the outputs can
+/// be written, the counts are positive.
+fn validate(cmd: &InspectCommand) -> Result<()> {
+    let positive = |n: usize, what: &str| {
+        anyhow::ensure!(n > 0, "{what} must be at least 1");
+        Ok(())
+    };
+    match cmd {
+        InspectCommand::Features {
+            image,
+            out,
+            levels,
+            select,
+            ..
+        } => {
+            args::input_file(image, "IMAGE")?;
+            args::output_file(out, "--out")?;
+            positive(*levels, "--levels")?;
+            positive(*select, "--select")
+        }
+        InspectCommand::Stereo {
+            left,
+            right,
+            max_disparity,
+            block,
+            out,
+            png,
+        } => {
+            args::input_file(left, "LEFT")?;
+            args::input_file(right, "RIGHT")?;
+            args::output_file(out, "--out")?;
+            if let Some(p) = png {
+                args::output_file(p, "--png")?;
+            }
+            positive(*max_disparity, "--max-disparity")?;
+            anyhow::ensure!(
+                *block >= 3 && block % 2 == 1,
+                "--block must be odd and at least 3, got {block}"
+            );
+            Ok(())
+        }
+        InspectCommand::Flow {
+            a,
+            b,
+            out,
+            iterations,
+        } => {
+            args::input_file(a, "A")?;
+            args::input_file(b, "B")?;
+            args::output_file(out, "--out")?;
+            positive(*iterations, "--iterations")
+        }
+        InspectCommand::Track {
+            dir,
+            out,
+            max_frames,
+            features,
+        } => {
+            args::input_dir(dir, "DIR")?;
+            args::output_dir(out, "--out")?;
+            anyhow::ensure!(
+                *max_frames >= 2,
+                "--max-frames must be at least 2 (tracks join frames)"
+            );
+            positive(*features, "--features")
+        }
+        InspectCommand::Match {
+            a,
+            b,
+            out,
+            features,
+        } => {
+            args::input_file(a, "A")?;
+            args::input_file(b, "B")?;
+            args::output_file(out, "--out")?;
+            positive(*features, "--features")
+        }
+    }
+}
+
 /// Runs an inspect command.
 pub fn run(cmd: InspectCommand) -> Result<()> {
+    validate(&cmd)?;
     match cmd {
         InspectCommand::Features {
             image,
@@ -132,7 +214,7 @@ pub fn run(cmd: InspectCommand) -> Result<()> {
 }
 
 fn load(path: &Path) -> Result<GrayImage> {
-    load_gray_u8(path).with_context(|| format!("reading image {}", path.display()))
+    Ok(load_gray_u8(path)?)
 }
 
 /// An RGB canvas with simple drawing.

@@ -296,6 +296,9 @@ pub fn run(args: PgoArgs) -> Result<()> {
             tag.lines.first().copied().unwrap_or(0)
         );
     }
+    for w in &file.report.information {
+        eprintln!("warning: {}: {w}", args.file.display());
+    }
     if let Some(init) = &file.report.initialisation {
         println!(
             "{}: no vertices in the file; initial poses chained along a spanning tree from vertex {} ({} of {} tree edges are odometry, {} component(s))",

@@ -28,6 +28,8 @@ pub enum Style {
     Points,
     /// A dashed polyline (a second family of curves beside `Line`).
     Dashed,
+    /// Separate line segments: points `2i` and `2i + 1` joined (graph edges).
+    Segments,
 }
 
 /// One data series.
@@ -194,6 +196,14 @@ where
                         .map_err(|e| anyhow::anyhow!("{e:?}"))?,
                     Style::Dashed => chart
                         .draw_series(DashedLineSeries::new(pts, 8, 6, color.stroke_width(2)))
+                        .map_err(|e| anyhow::anyhow!("{e:?}"))?,
+                    Style::Segments => chart
+                        .draw_series(
+                            s.points
+                                .chunks_exact(2)
+                                .filter(|c| c.iter().all(|(x, y)| x.is_finite() && y.is_finite()))
+                                .map(|c| PathElement::new(vec![c[0], c[1]], color.stroke_width(1))),
+                        )
                         .map_err(|e| anyhow::anyhow!("{e:?}"))?,
                 };
                 if !s.label.is_empty() {

@@ -170,6 +170,12 @@ pub enum ParseErrorKind {
         /// How many there are.
         count: usize,
     },
+    /// A YAML document that does not parse or does not have the expected keys and types.
+    #[error("YAML: {message}")]
+    Yaml {
+        /// The YAML parser's message (with the column where it has one).
+        message: String,
+    },
     /// Anything else: what was expected and what was found.
     #[error("expected {expected}, found {found}")]
     Expected {

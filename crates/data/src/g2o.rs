@@ -44,15 +44,44 @@
 //! vertex not connected to the root starts a component of its own at the identity; the number
 //! of components is reported in [`ChainedInitialisation`].
 //!
+//! # Information matrices that are not positive definite
+//!
+//! Some published graphs have edges whose information matrix is singular (e.g. zero weight on
+//! the unobserved components of a planar edge) or indefinite (rounding of printed values). Such
+//! a file loads; every such edge is listed in [`G2oReport::information`] with its line, its
+//! vertices and the eigenvalues, for the caller to warn (`dwslam pgo` prints each one):
+//!
+//! * **singular, positive semi-definite** (smallest eigenvalue within the rounding tolerance
+//!   `±64·DOF·ε·max|λ|` of zero): used as it is. The cost `½ dᵀΛd` gives the residual along
+//!   the null space no weight. This is what both peers compute: GTSAM's
+//!   `noiseModel::Gaussian::Information` turns a zero diagonal precision into σ = ∞ (weight 0;
+//!   measured with gtsam 4.3.0's `readG2o` on SE(3) files, cost equal to `½ dᵀΛd`), and g2o
+//!   uses `Λ` in `eᵀΛe` directly (its `verifyInformationMatrices` only flags a negative
+//!   eigenvalue). GTSAM's `readG2o` refuses an SE(2) edge with a zero diagonal entry ("looks
+//!   like this is not G2O matrix order", a format-guessing check), although its noise model
+//!   built directly from the matrix handles it.
+//! * **indefinite** (an eigenvalue below `−tol`): replaced by the nearest positive
+//!   semi-definite matrix in the Frobenius norm (Higham 1988: negative eigenvalues set to zero),
+//!   so the cost stays bounded below. The peers give no usable answer here, measured on
+//!   constructed files (gtsam 4.3.0, g2o-python 0.0.12): GTSAM's `Information` takes a diagonal
+//!   matrix's negative precision to σ = NaN (cost NaN, LM stops at iteration 0) and factors a
+//!   full one with Eigen's `LLT` without checking its success, optimising an unrelated matrix
+//!   `RᵀR` built from the partial factor; g2o optimises `eᵀΛe` with the indefinite `Λ` as
+//!   written (unbounded below along the negative direction) and warns only if
+//!   `verifyInformationMatrices` is called.
+//!
+//! A positive definite matrix is stored exactly as written, so files with well-formed
+//! information give the same graph as before.
+//!
 //! # Errors
 //!
 //! Malformed input is a [`DataError`] naming the file, the line and what was expected: a wrong
-//! field count, a non-number, NaN or ∞, a zero quaternion, an information matrix that is not
-//! positive definite, a duplicate vertex id, an edge or `FIX` to an unknown vertex, an edge from
+//! field count, a non-number, NaN or ∞, a zero quaternion, a duplicate vertex id, an edge or `FIX` to an unknown vertex, an edge from
 //! a vertex to itself, 2D and 3D records mixed in one file, a file without vertex or edge
 //! records, non-UTF-8 text.
 
 use crate::error::{DataError, ParseErrorKind};
+pub use crate::pose_graph::{Definiteness, definiteness, nearest_positive_semidefinite};
 use crate::pose_graph::{Edge, PoseGraph, PoseGraph2, PoseGraph3};
 use crate::text::{At, fmt_f64, read_to_string};
 use lie::{LieGroup, Se2, Se3, So3};
@@ -142,11 +171,70 @@ pub struct ChainedInitialisation {
     pub components: usize,
 }
 
+/// What the reader did with an information matrix that is not positive definite.
+#[derive(Clone, Debug, PartialEq)]
+pub enum InformationAction {
+    /// Positive semi-definite but singular: used as it is; the residual's component along the
+    /// null space carries no weight (as GTSAM and g2o do).
+    UsedSingular {
+        /// Number of eigenvalues above the rounding tolerance.
+        rank: usize,
+    },
+    /// Indefinite: replaced by the nearest positive semi-definite matrix (negative eigenvalues
+    /// set to zero, [`nearest_positive_semidefinite`]).
+    ProjectedToSemidefinite,
+}
+
+/// An edge whose information matrix is not positive definite (see the [module docs](self)).
+#[derive(Clone, Debug, PartialEq)]
+pub struct InformationWarning {
+    /// 1-based line of the edge.
+    pub line: usize,
+    /// The edge's `from` vertex id.
+    pub from: u64,
+    /// The edge's `to` vertex id.
+    pub to: u64,
+    /// Eigenvalues of the information matrix as written in the file, ascending.
+    pub eigenvalues: Vec<f64>,
+    /// What was done with it.
+    pub action: InformationAction,
+}
+
+impl std::fmt::Display for InformationWarning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let eig: Vec<String> = self
+            .eigenvalues
+            .iter()
+            .map(|l| format!("{l:.6e}"))
+            .collect();
+        write!(
+            f,
+            "line {}: edge {} -> {}: information matrix is not positive definite (eigenvalues {}): ",
+            self.line,
+            self.from,
+            self.to,
+            eig.join(", ")
+        )?;
+        match &self.action {
+            InformationAction::UsedSingular { rank } => write!(
+                f,
+                "singular (rank {rank}); used as is, so the residual along its null space has no weight"
+            ),
+            InformationAction::ProjectedToSemidefinite => write!(
+                f,
+                "indefinite; replaced by the nearest positive semi-definite matrix (negative eigenvalues set to 0)"
+            ),
+        }
+    }
+}
+
 /// What the reader found besides the graph.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct G2oReport {
     /// Tags that were not understood, in order of first appearance; never silently dropped.
     pub unknown_tags: Vec<UnknownTag>,
+    /// Edges whose information matrix is not positive definite, in file order.
+    pub information: Vec<InformationWarning>,
     /// `Some` when the file had no `VERTEX` lines and poses were chained from the edges.
     pub initialisation: Option<ChainedInitialisation>,
 }
@@ -363,6 +451,7 @@ pub fn parse_g2o(text: &str, path: &Path) -> Result<G2oFile, DataError> {
 
     let report = G2oReport {
         unknown_tags: unknown,
+        information: Vec::new(),
         initialisation: None,
     };
     match dimension {
@@ -414,11 +503,34 @@ fn build<G: G2oPose<DOF>, const DOF: usize>(
     let mut edges = Vec::with_capacity(raw_edges.len());
     for e in &raw_edges {
         let measurement = G::from_g2o_fields(&e.measurement).map_err(|k| at(e.line).err(k))?;
-        let information = symmetric_from_upper::<DOF>(&e.information_upper);
+        let mut information = symmetric_from_upper::<DOF>(&e.information_upper);
         if e.from == e.to {
             return Err(at(e.line).err(ParseErrorKind::SelfLoop { id: e.from }));
         }
-        crate::pose_graph::check_information(&information).map_err(|k| at(e.line).err(k))?;
+        // Finite and symmetric (by construction) first; then the definiteness policy.
+        match crate::pose_graph::check_information(&information) {
+            Err(ParseErrorKind::InformationNotPositiveDefinite { .. }) => {}
+            other => other.map_err(|k| at(e.line).err(k))?,
+        }
+        let action = match definiteness(&information) {
+            Definiteness::PositiveDefinite => None,
+            Definiteness::Singular { rank, eigenvalues } => {
+                Some((InformationAction::UsedSingular { rank }, eigenvalues))
+            }
+            Definiteness::Indefinite { eigenvalues } => {
+                information = nearest_positive_semidefinite(&information);
+                Some((InformationAction::ProjectedToSemidefinite, eigenvalues))
+            }
+        };
+        if let Some((action, eigenvalues)) = action {
+            report.information.push(InformationWarning {
+                line: e.line,
+                from: e.from,
+                to: e.to,
+                eigenvalues,
+                action,
+            });
+        }
         edges.push(Edge {
             from: e.from,
             to: e.to,

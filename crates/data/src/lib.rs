@@ -7,6 +7,12 @@
 //! * [`isam`]: the noise-free ground truth of iSAM's pose-graph datasets (`EDGE2`/`EDGE3`);
 //! * [`bal`]: "Bundle Adjustment in the Large" problems, plain or `.bz2`;
 //! * [`trajectory`]: TUM, KITTI and EuRoC trajectory files and timestamp association;
+//! * [`camera`], [`camera_file`]: calibrations as datasets state them, dwslam's camera YAML
+//!   and ORB-SLAM3 settings files;
+//! * [`sequence`]: image sequences (TUM RGB-D / 7-Scenes, EuRoC, KITTI, image folders) read
+//!   ahead on their own thread, undistorted and rectified, with ground truth;
+//! * [`output`]: what a run writes (every frame's pose and tracking state, keyframes, map
+//!   points as PLY, `summary.json`);
 //! * [`dataset_writer`]: writers of the TUM RGB-D, EuRoC MAV and KITTI odometry layouts;
 //! * [`eval`]: absolute trajectory error (after SE(3) or Sim(3) alignment, thesis eq.
 //!   5.11–5.14) and relative pose error.
@@ -17,13 +23,17 @@
 #![warn(missing_docs)]
 
 pub mod bal;
+pub mod camera;
+pub mod camera_file;
 pub mod dataset_writer;
 mod error;
 pub mod eval;
 pub mod g2o;
 pub mod isam;
+pub mod output;
 pub mod paths;
 mod pose_graph;
+pub mod sequence;
 mod text;
 pub mod trajectory;
 

@@ -78,34 +78,97 @@ impl<G, const DOF: usize> Default for PoseGraph<G, DOF> {
 }
 
 /// Checks that an information matrix is finite, symmetric (to `1e-9` of its largest entry) and
-/// positive definite (its Cholesky factorisation exists).
+/// positive semi-definite: its smallest eigenvalue is at least `−tol`,
+/// `tol = 64·DOF·ε·max|λ|` (the rounding of a zero eigenvalue; see [`definiteness`]). A singular
+/// matrix is accepted: the residual's component along its null space carries no weight in the
+/// cost `½ dᵀΛd`, as in GTSAM (a zero precision is an infinite σ) and g2o (which only warns
+/// about a negative eigenvalue). An indefinite matrix is an error here; the g2o reader projects
+/// it onto the positive semi-definite cone instead, with a warning (see [`crate::g2o`]).
 pub fn check_information<const DOF: usize>(
     information: &SMatrix<f64, DOF, DOF>,
 ) -> Result<(), ParseErrorKind> {
-    let describe = || {
-        let rows: Vec<String> = information
-            .row_iter()
-            .map(|r| {
-                let v: Vec<String> = r.iter().map(|x| format!("{x}")).collect();
-                v.join(" ")
-            })
-            .collect();
-        format!("[{}]", rows.join("; "))
-    };
     if !information.iter().all(|v| v.is_finite()) {
         return Err(ParseErrorKind::NotFinite {
             field: "information".into(),
-            text: describe(),
+            text: describe_matrix(information),
         });
     }
     let asymmetry = (information - information.transpose()).amax();
     if asymmetry > 1e-9 * information.amax() {
         return Err(ParseErrorKind::InformationNotSymmetric { asymmetry });
     }
-    if nalgebra::Cholesky::new(*information).is_none() {
-        return Err(ParseErrorKind::InformationNotPositiveDefinite { matrix: describe() });
+    if let Definiteness::Indefinite { .. } = definiteness(information) {
+        return Err(ParseErrorKind::InformationNotPositiveDefinite {
+            matrix: describe_matrix(information),
+        });
     }
     Ok(())
+}
+
+/// The matrix row by row, for messages: `[a b c; d e f; …]`.
+pub(crate) fn describe_matrix<const DOF: usize>(m: &SMatrix<f64, DOF, DOF>) -> String {
+    let rows: Vec<String> = m
+        .row_iter()
+        .map(|r| {
+            let v: Vec<String> = r.iter().map(|x| format!("{x}")).collect();
+            v.join(" ")
+        })
+        .collect();
+    format!("[{}]", rows.join("; "))
+}
+
+/// The definiteness of a symmetric information matrix, from its eigenvalues `λ` (ascending) with
+/// the tolerance `tol = 64·DOF·ε·max|λ|` for rounding.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Definiteness {
+    /// `λ_min > tol`.
+    PositiveDefinite,
+    /// `−tol ≤ λ_min ≤ tol`: positive semi-definite with `rank` eigenvalues above `tol`.
+    Singular {
+        /// Number of eigenvalues above the tolerance.
+        rank: usize,
+        /// All eigenvalues, ascending.
+        eigenvalues: Vec<f64>,
+    },
+    /// `λ_min < −tol`.
+    Indefinite {
+        /// All eigenvalues, ascending.
+        eigenvalues: Vec<f64>,
+    },
+}
+
+/// Classifies a symmetric matrix (see [`Definiteness`]); the symmetric part is used.
+pub fn definiteness<const DOF: usize>(m: &SMatrix<f64, DOF, DOF>) -> Definiteness {
+    let sym = (m + m.transpose()) * 0.5;
+    // Dynamic storage: nalgebra's eigen-solver needs `DimSub` bounds a const generic lacks.
+    let dynamic = nalgebra::DMatrix::from_column_slice(DOF, DOF, sym.as_slice());
+    let mut eigenvalues: Vec<f64> = dynamic.symmetric_eigenvalues().iter().copied().collect();
+    eigenvalues.sort_by(f64::total_cmp);
+    let tol =
+        64.0 * DOF as f64 * f64::EPSILON * eigenvalues.iter().fold(0.0f64, |a, l| a.max(l.abs()));
+    let min = eigenvalues[0];
+    if min > tol {
+        Definiteness::PositiveDefinite
+    } else if min >= -tol {
+        let rank = eigenvalues.iter().filter(|&&l| l > tol).count();
+        Definiteness::Singular { rank, eigenvalues }
+    } else {
+        Definiteness::Indefinite { eigenvalues }
+    }
+}
+
+/// The positive semi-definite matrix nearest to the symmetric `m` in the Frobenius norm
+/// (Higham 1988): `Q·max(D, 0)·Qᵀ` for `m = Q·D·Qᵀ`, symmetrised. Its eigenvalues are those of
+/// `m` with the negative ones set to zero (up to rounding, within [`definiteness`]'s tolerance).
+pub fn nearest_positive_semidefinite<const DOF: usize>(
+    m: &SMatrix<f64, DOF, DOF>,
+) -> SMatrix<f64, DOF, DOF> {
+    let sym = (m + m.transpose()) * 0.5;
+    let eig = nalgebra::DMatrix::from_column_slice(DOF, DOF, sym.as_slice()).symmetric_eigen();
+    let d = nalgebra::DMatrix::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)));
+    let p = &eig.eigenvectors * d * eig.eigenvectors.transpose();
+    let p = SMatrix::<f64, DOF, DOF>::from_column_slice(p.as_slice());
+    (p + p.transpose()) * 0.5
 }
 
 impl<G: LieGroup<DOF>, const DOF: usize> PoseGraph<G, DOF> {
@@ -271,6 +334,10 @@ mod tests {
             g.add_edge(edge(1, 1, Matrix3::identity())),
             Err(ParseErrorKind::SelfLoop { id: 1 })
         );
+        // Singular positive semi-definite information is accepted (no weight on θ here).
+        let singular = Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 1.0, 0.0));
+        g.add_edge(edge(0, 1, singular)).unwrap();
+        g.edges.clear();
         g.add_edge(edge(0, 1, Matrix3::identity() * 2.0)).unwrap();
         assert_eq!(g.fix(7), Err(ParseErrorKind::UnknownVertex { id: 7 }));
         g.fix(0).unwrap();

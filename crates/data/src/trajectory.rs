@@ -136,6 +136,31 @@ pub fn read_kitti(path: impl AsRef<Path>) -> Result<Vec<Se3>, DataError> {
 
 /// Parses KITTI pose text; `path` only names the source in errors.
 pub fn parse_kitti(text: &str, path: &Path) -> Result<Vec<Se3>, DataError> {
+    parse_kitti_rows(text, path)?
+        .into_iter()
+        .map(|(line, m)| {
+            Se3::from_matrix_with_tolerance(&m, KITTI_ORTHONORMALITY_TOLERANCE).map_err(|source| {
+                At { path, line }.err(ParseErrorKind::InvalidRotation {
+                    what: "rotation block".into(),
+                    source,
+                })
+            })
+        })
+        .collect()
+}
+
+/// Reads a KITTI pose file as the 4×4 matrices it stores, not re-orthonormalised (KITTI prints
+/// 7 digits, so the rotation blocks are orthonormal to ~1e-7); evo computes with these, and
+/// so does [`crate::eval::rpe_matrices`] to agree with it.
+pub fn read_kitti_matrices(path: impl AsRef<Path>) -> Result<Vec<Matrix4<f64>>, DataError> {
+    let path = path.as_ref();
+    let rows = parse_kitti_rows(&read_to_string(path)?, path)?;
+    // Validated as poses like `read_kitti` does.
+    parse_kitti(&read_to_string(path)?, path)?;
+    Ok(rows.into_iter().map(|(_, m)| m).collect())
+}
+
+fn parse_kitti_rows(text: &str, path: &Path) -> Result<Vec<(usize, Matrix4<f64>)>, DataError> {
     let mut poses = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let at = At { path, line: i + 1 };
@@ -146,15 +171,7 @@ pub fn parse_kitti(text: &str, path: &Path) -> Result<Vec<Se3>, DataError> {
             m[(k / 4, k % 4)] =
                 at.number(w[k], &format!("entry ({}, {})", k / 4 + 1, k % 4 + 1))?;
         }
-        let pose = Se3::from_matrix_with_tolerance(&m, KITTI_ORTHONORMALITY_TOLERANCE).map_err(
-            |source| {
-                at.err(ParseErrorKind::InvalidRotation {
-                    what: "rotation block".into(),
-                    source,
-                })
-            },
-        )?;
-        poses.push(pose);
+        poses.push((i + 1, m));
     }
     if poses.is_empty() {
         return Err(empty_error(path, "KITTI poses"));
@@ -332,4 +349,106 @@ pub fn associate_trajectories(
 /// Relative pose `a⁻¹·b` (pose of `b` in the frame of `a`).
 pub fn relative(a: &Se3, b: &Se3) -> Se3 {
     a.inverse().compose(b)
+}
+
+/// One-to-one association of two timestamp lists as TUM RGB-D's `associate.py` does it: every
+/// pair `(a, b)` with `|a − (b + offset)| < max_difference` is a candidate; candidates are taken
+/// in increasing order of that difference (ties by `a`, then `b`), each timestamp of either list
+/// at most once. Returns `(index in first, index in second)` pairs sorted by the first index.
+/// Both lists are expected sorted (candidates are found by a sliding window; unsorted lists
+/// give a subset of `associate.py`'s pairs).
+pub fn associate_unique(
+    first: &[f64],
+    second: &[f64],
+    offset: f64,
+    max_difference: f64,
+) -> Vec<(usize, usize)> {
+    let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
+    let mut start = 0;
+    for (i, &a) in first.iter().enumerate() {
+        while start < second.len() && second[start] + offset <= a - max_difference {
+            start += 1;
+        }
+        let mut j = start;
+        while j < second.len() && second[j] + offset < a + max_difference {
+            let d = (a - (second[j] + offset)).abs();
+            if d < max_difference {
+                candidates.push((d, i, j));
+            }
+            j += 1;
+        }
+    }
+    candidates.sort_by(|x, y| {
+        x.0.total_cmp(&y.0)
+            .then(first[x.1].total_cmp(&first[y.1]))
+            .then(second[x.2].total_cmp(&second[y.2]))
+    });
+    let mut used_first = vec![false; first.len()];
+    let mut used_second = vec![false; second.len()];
+    let mut pairs = Vec::new();
+    for (_, i, j) in candidates {
+        if !used_first[i] && !used_second[j] {
+            used_first[i] = true;
+            used_second[j] = true;
+            pairs.push((i, j));
+        }
+    }
+    pairs.sort();
+    pairs
+}
+
+/// The trajectory file formats [`read_trajectory`] tells apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrajectoryFormat {
+    /// `timestamp tx ty tz qx qy qz qw`.
+    Tum,
+    /// 12 numbers per line, no timestamps.
+    Kitti,
+    /// EuRoC ground-truth CSV (nanoseconds, comma-separated).
+    Euroc,
+}
+
+/// The format of trajectory text from its first data line: comma-separated with ≥ 8 fields is
+/// EuRoC, 8 fields TUM, 12 fields KITTI.
+pub fn detect_trajectory_format(text: &str, path: &Path) -> Result<TrajectoryFormat, DataError> {
+    for (i, line) in text.lines().enumerate() {
+        let t = line.trim();
+        if t.is_empty() || t.starts_with('#') {
+            continue;
+        }
+        let commas = t.split(',').count();
+        let words = t.split_whitespace().count();
+        return match (commas, words) {
+            (c, _) if c >= 8 => Ok(TrajectoryFormat::Euroc),
+            (_, 8) => Ok(TrajectoryFormat::Tum),
+            (_, 12) => Ok(TrajectoryFormat::Kitti),
+            _ => Err(DataError::Parse {
+                path: path.to_path_buf(),
+                line: i + 1,
+                kind: ParseErrorKind::Expected {
+                    expected: "a trajectory line: TUM (8 numbers), KITTI (12) or EuRoC CSV (≥ 8 \
+                               comma-separated)"
+                        .into(),
+                    found: format!("{words} space-separated fields"),
+                },
+            }),
+        };
+    }
+    Err(empty_error(path, "trajectory lines"))
+}
+
+/// Reads a trajectory in any of the [`TrajectoryFormat`]s (KITTI poses get timestamps
+/// `0, 1, 2, …`, i.e. they associate by index, as evo's `kitti` mode).
+pub fn read_trajectory(
+    path: impl AsRef<Path>,
+) -> Result<(Trajectory, TrajectoryFormat), DataError> {
+    let path = path.as_ref();
+    let text = read_to_string(path)?;
+    let format = detect_trajectory_format(&text, path)?;
+    let t = match format {
+        TrajectoryFormat::Tum => parse_tum(&text, path)?,
+        TrajectoryFormat::Kitti => Trajectory::from_poses(parse_kitti(&text, path)?),
+        TrajectoryFormat::Euroc => parse_euroc_groundtruth(&text, path)?,
+    };
+    Ok((t, format))
 }

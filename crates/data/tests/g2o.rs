@@ -322,15 +322,6 @@ fn malformed_inputs_give_errors_with_file_and_line() {
         (e(&format!("EDGE_SE2 0 1.5 1 0 0 {info}")), 3, |k| {
             matches!(k, ParseErrorKind::NotAnIndex { .. })
         }),
-        (e("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 0"), 3, |k| {
-            matches!(k, ParseErrorKind::InformationNotPositiveDefinite { .. })
-        }),
-        (e("EDGE_SE2 0 1 1 0 0 1 2 0 1 0 1"), 3, |k| {
-            matches!(k, ParseErrorKind::InformationNotPositiveDefinite { .. })
-        }),
-        (e("EDGE_SE2 0 1 1 0 0 -1 0 0 1 0 1"), 3, |k| {
-            matches!(k, ParseErrorKind::InformationNotPositiveDefinite { .. })
-        }),
         (e(&format!("EDGE_SE2 0 7 1 0 0 {info}")), 3, |k| {
             matches!(k, ParseErrorKind::UnknownVertex { id: 7 })
         }),
@@ -368,11 +359,6 @@ fn malformed_inputs_give_errors_with_file_and_line() {
         (format!("{v0}FIX a\n"), 2, |k| {
             matches!(k, ParseErrorKind::NotAnIndex { .. })
         }),
-        (
-            "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 -1\n".into(),
-            1,
-            |k| matches!(k, ParseErrorKind::InformationNotPositiveDefinite { .. }),
-        ),
     ];
     for (text, line, check) in cases {
         let (got_line, kind) = error_of(&text);
@@ -498,5 +484,90 @@ proptest! {
             // to ∞ for finite but huge numbers such as 1e308, which the reader accepts).
             let _ = file.graph.cost();
         }
+    }
+}
+
+/// Singular and indefinite information matrices load with a warning naming the edge and its
+/// line: a singular one is used as is, an indefinite one is replaced by the nearest positive
+/// semi-definite matrix; positive definite ones stay exactly as written (see `data::g2o`).
+#[test]
+fn non_positive_definite_information_loads_with_warnings() {
+    use data::g2o::{InformationAction, definiteness, nearest_positive_semidefinite};
+    let text = "VERTEX_SE2 0 0 0 0\n\
+                VERTEX_SE2 1 1 0 0\n\
+                VERTEX_SE2 2 2 0.1 0.1\n\
+                EDGE_SE2 0 1 1 0 0 10 0 0 10 0 100\n\
+                EDGE_SE2 1 2 1 0 0.1 10 0 0 10 0 0\n\
+                EDGE_SE2 0 2 2 0 0.1 1 2 0 1 0 1\n";
+    let f = parse_g2o(text, Path::new("constructed.g2o")).unwrap();
+    let G2oGraph::Se2(g) = &f.graph else {
+        panic!("SE(2)")
+    };
+    let w = &f.report.information;
+    assert_eq!(w.len(), 2, "{w:?}");
+    assert_eq!((w[0].line, w[0].from, w[0].to), (5, 1, 2));
+    assert_eq!(w[0].action, InformationAction::UsedSingular { rank: 2 });
+    assert_eq!(w[0].eigenvalues, vec![0.0, 10.0, 10.0]);
+    assert_eq!((w[1].line, w[1].from, w[1].to), (6, 0, 2));
+    assert_eq!(w[1].action, InformationAction::ProjectedToSemidefinite);
+    for (got, want) in w[1].eigenvalues.iter().zip([-1.0, 1.0, 3.0]) {
+        assert!((got - want).abs() < 1e-12, "{:?}", w[1].eigenvalues);
+    }
+    let msg = w[1].to_string();
+    assert!(
+        msg.contains("line 6") && msg.contains("0 -> 2") && msg.contains("indefinite"),
+        "{msg}"
+    );
+    // Positive definite and singular matrices are kept exactly; the indefinite one becomes
+    // [[1.5, 1.5, 0], [1.5, 1.5, 0], [0, 0, 1]] (eigenvalue −1 dropped).
+    let e = g.edges();
+    assert_eq!(
+        e[0].information,
+        nalgebra::Matrix3::new(10.0, 0.0, 0.0, 0.0, 10.0, 0.0, 0.0, 0.0, 100.0)
+    );
+    assert_eq!(
+        e[1].information,
+        nalgebra::Matrix3::new(10.0, 0.0, 0.0, 0.0, 10.0, 0.0, 0.0, 0.0, 0.0)
+    );
+    let want = nalgebra::Matrix3::new(1.5, 1.5, 0.0, 1.5, 1.5, 0.0, 0.0, 0.0, 1.0);
+    assert!(
+        (e[2].information - want).amax() < 1e-14,
+        "{}",
+        e[2].information
+    );
+    assert!(!matches!(
+        definiteness(&e[2].information),
+        data::g2o::Definiteness::Indefinite { .. }
+    ));
+    assert_eq!(
+        nearest_positive_semidefinite(&e[0].information),
+        e[0].information
+    );
+    assert!(g.cost().is_finite() && g.cost() > 0.0);
+
+    // SE(3): a negative diagonal entry is set to zero.
+    let text3 = "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n\
+                 EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 -1\n";
+    let f = parse_g2o(text3, Path::new("constructed3.g2o")).unwrap();
+    let G2oGraph::Se3(g) = &f.graph else {
+        panic!("SE(3)")
+    };
+    assert_eq!(f.report.information.len(), 1);
+    assert_eq!(f.report.information[0].line, 3);
+    let mut want = nalgebra::Matrix6::<f64>::identity();
+    want[(5, 5)] = 0.0;
+    assert!((g.edges()[0].information - want).amax() < 1e-15);
+
+    // The shared benchmark graphs are all positive definite: no warning, nothing changed.
+    for name in ["intel", "sphere2500", "parking-garage", "M3500"] {
+        let Some(path) = require(format!("pose_graph_g2o/{name}.g2o")) else {
+            continue;
+        };
+        let f = read_g2o(&path).unwrap();
+        assert!(
+            f.report.information.is_empty(),
+            "{name}: {:?}",
+            f.report.information.first()
+        );
     }
 }

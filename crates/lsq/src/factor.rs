@@ -128,6 +128,9 @@ pub(crate) enum Whitening {
     Diagonal(usize),
     /// Offset into the pool of upper-triangular `W = Lᵀ` (column-major `R×R`), `Λ = L·Lᵀ`.
     Full(usize),
+    /// Offset into the pool of a general `W = √D·Qᵀ` (column-major `R×R`) for a singular
+    /// positive semi-definite `Λ = Q·D·Qᵀ`, whose Cholesky factorisation does not exist.
+    Dense(usize),
 }
 
 impl Information {
@@ -175,16 +178,16 @@ impl Information {
                 if asym > 1e-9 * (1.0 + m.abs().max()) {
                     return Err(bad(format!("asymmetric by {asym:e}")));
                 }
-                let chol = m
-                    .clone()
-                    .cholesky()
-                    .ok_or_else(|| bad("Cholesky factorisation failed".into()))?;
                 // A diagonal Λ (common: g2o files and unit information write full matrices
                 // with zero off-diagonals) is whitened by the cheaper variants. Their `W` is
                 // the same as the Cholesky factor's (√Λ_ii on the diagonal, exact zeros off
-                // it), so the whitened values are bit for bit those of the full product.
+                // it), so the whitened values are bit for bit those of the full product. Zero
+                // entries (a singular Λ: no information on that component) give zero weights.
                 let diagonal = (0..dim).all(|c| (0..dim).all(|r| r == c || m[(r, c)] == 0.0));
                 if diagonal {
+                    if let Some(k) = (0..dim).find(|&k| m[(k, k)] < 0.0) {
+                        return Err(bad(format!("negative diagonal entry {}", m[(k, k)])));
+                    }
                     let first = m[(0, 0)];
                     if (0..dim).all(|k| m[(k, k)] == first) {
                         return Ok(if first == 1.0 {
@@ -197,10 +200,31 @@ impl Information {
                     pool.extend((0..dim).map(|k| m[(k, k)].sqrt()));
                     return Ok(Whitening::Diagonal(offset));
                 }
-                let w = chol.l().transpose();
+                if let Some(chol) = m.clone().cholesky() {
+                    let w = chol.l().transpose();
+                    let offset = pool.len();
+                    pool.extend_from_slice(w.as_slice());
+                    return Ok(Whitening::Full(offset));
+                }
+                // Singular but positive semi-definite (eigenvalues ≥ −tol, tol = 64·R·ε·|λ|max,
+                // rounding of a zero eigenvalue): W = √max(D, 0)·Qᵀ, so WᵀW = Λ and the
+                // residual's component along the null space carries no weight.
+                let eig = nalgebra::SymmetricEigen::new(m.clone());
+                let scale = eig.eigenvalues.amax();
+                let tol = 64.0 * dim as f64 * f64::EPSILON * scale;
+                let min = eig.eigenvalues.min();
+                if min < -tol {
+                    return Err(bad(format!(
+                        "indefinite (smallest eigenvalue {min:e}, largest {scale:e})"
+                    )));
+                }
+                let mut w = eig.eigenvectors.transpose();
+                for (mut row, &l) in w.row_iter_mut().zip(eig.eigenvalues.iter()) {
+                    row *= l.max(0.0).sqrt();
+                }
                 let offset = pool.len();
                 pool.extend_from_slice(w.as_slice());
-                Ok(Whitening::Full(offset))
+                Ok(Whitening::Dense(offset))
             }
         }
     }
@@ -235,6 +259,20 @@ impl Whitening {
                     }
                 }
             }
+            Whitening::Dense(o) => {
+                let w = &pool[o..o + dim * dim];
+                let (mut small, mut large) = ([0.0f64; 16], Vec::new());
+                let input: &mut [f64] = if dim <= 16 {
+                    &mut small[..dim]
+                } else {
+                    large.resize(dim, 0.0);
+                    &mut large
+                };
+                input.copy_from_slice(&x[..dim]);
+                for (i, xi) in x.iter_mut().enumerate().take(dim) {
+                    *xi = (0..dim).map(|j| w[j * dim + i] * input[j]).sum();
+                }
+            }
         }
     }
 }
@@ -257,6 +295,45 @@ fn upper_triangular_times<const D: usize>(w: &[f64], x: &mut [f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Singular positive semi-definite information (a zero diagonal entry; a full matrix with a
+    /// null direction) is whitened with `WᵀW = Λ`; an indefinite one is refused.
+    #[test]
+    fn singular_semidefinite_information_is_whitened_and_indefinite_refused() {
+        let mut pool = Vec::new();
+        let d = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![4.0, 0.0, 9.0]));
+        let w = Information::Full(d).whitening(3, &mut pool).unwrap();
+        assert!(matches!(w, Whitening::Diagonal(_)));
+        let mut y = [1.0, 5.0, 1.0];
+        w.apply(&pool, 3, &mut y);
+        assert_eq!(y, [2.0, 0.0, 3.0]);
+        // Λ = A·Aᵀ with A of rank 4 (6×4): singular, Cholesky fails.
+        let a = DMatrix::from_fn(6, 4, |r, c| ((r * 7 + c * 3) % 5) as f64 - 1.5);
+        let m = &a * a.transpose();
+        assert!(m.clone().cholesky().is_none());
+        let mut pool = Vec::new();
+        let w = Information::Full(m.clone())
+            .whitening(6, &mut pool)
+            .unwrap();
+        assert!(matches!(w, Whitening::Dense(_)));
+        let x = [0.3, -1.2, 2.5, 0.7, -0.4, 1.1];
+        let mut y = x;
+        w.apply(&pool, 6, &mut y);
+        let xv = nalgebra::DVector::from_column_slice(&x);
+        let want = (xv.transpose() * &m * &xv)[0];
+        let got: f64 = y.iter().map(|v| v * v).sum();
+        assert!(
+            (got - want).abs() < 1e-12 * want.abs().max(1.0),
+            "{got} vs {want}"
+        );
+        let mut ind = DMatrix::<f64>::identity(3, 3);
+        ind[(2, 2)] = -1.0;
+        assert!(Information::Full(ind).whitening(3, &mut pool).is_err());
+        let mut ind = DMatrix::<f64>::identity(3, 3);
+        ind[(0, 1)] = 2.0;
+        ind[(1, 0)] = 2.0;
+        assert!(Information::Full(ind).whitening(3, &mut pool).is_err());
+    }
 
     /// A full information matrix that happens to be diagonal is whitened by the cheap
     /// variants, with the same values as the Cholesky factor's product; a non-diagonal one

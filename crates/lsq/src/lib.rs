@@ -24,6 +24,7 @@
 #![allow(clippy::needless_range_loop)]
 
 mod block;
+mod chi2;
 pub mod dense;
 mod factor;
 mod kernels;
@@ -37,6 +38,7 @@ mod solver;
 mod values;
 
 pub use block::BlockSymmetric;
+pub use chi2::chi2_quantile;
 pub use factor::{Factor, Information, InformationError, Jacobians, MAX_ARITY};
 pub use linear::{CholeskyMethod, LinearError};
 pub use manifold::Manifold;

@@ -1,26 +1,19 @@
 //! The double window optimisation experiments of thesis §6.5.1 on simulated data: the spiral
 //! (Figures 6.9–6.10) and the monocular double loop with scale drift (Figures 6.11–6.12).
 //!
-//! A simulated SLAM system runs keyframe by keyframe on a [`SlamGraph`]: the sensor measures
-//! every visible world point with Gaussian noise; data association is perfect but, as in the
+//! A simulated SLAM system runs keyframe by keyframe on a [`SlamGraph`] through the keyframe
+//! pipeline of the live system ([`slam::mapping::KeyframePipeline`]: tracking, insertion with
+//! local registration, appearance and metric loop closure, new points, double window
+//! optimisation). Only the front-end is simulated ([`SimFrontEnd`]): the sensor measures every
+//! visible world point with Gaussian noise, and data association is perfect but, as in the
 //! live system, *only* among the candidate points of `N1(ref)` (thesis §6.2.5), so that drift
-//! accumulates and revisited places need loop closure. Per keyframe:
-//!
-//! 1. **tracking**: robust motion-only BA against the candidate points, from a
-//!    constant-velocity guess ([`registration::estimate_pose`]);
-//! 2. **local registration** ([`registration::register_locally`], thesis §6.2.6);
-//! 3. **appearance loop closure**, when the scenario injects one (the place recogniser of the
-//!    image front-end is not simulated): the relative pose comes from the 3D–3D matches of
-//!    the two keyframes' points (Sim(3) for monocular, SE(3) for stereo; thesis eq. 5.11–5.14,
-//!    6.9), then [`registration::close_appearance_loop`];
-//! 4. **metric loop closure**: guided search (10-pixel radius around the prediction) for the
-//!    points of `N2 \ N1` ([`registration::loop_candidates`]), then
-//!    [`registration::close_metric_loops`] (thesis §6.4.1);
-//! 5. **new points** for the measurements still unmatched: from the disparity (stereo) or by
-//!    two-view triangulation once the parallax exceeds 1.5° (monocular), anchored in the
-//!    first keyframe that saw them;
-//! 6. **optimisation**: full BA, cDWO, gDWO or cDWO with a fixed outer window
-//!    ([`DoubleWindowOptimiser`]), each an instance of the same double window optimiser.
+//! accumulates and revisited places need loop closure. The place recogniser of the image
+//! front-end is not simulated: a scenario injects its appearance loop closures, with the 3D–3D
+//! correspondences of the two keyframes' local maps; metric loop closure finds the points of
+//! `N2 \ N1` by a guided search of 10 pixels around their predictions. Monocular runs take
+//! the true poses of their first keyframes (the bootstrap of a live system is not simulated).
+//! Every method — full BA, cDWO, gDWO or cDWO with a fixed outer window — is an instance of
+//! the same double window optimiser ([`DoubleWindowOptimiser`]).
 //!
 //! Accuracy is the RMSE of relative translations (thesis eq. 6.10) over the graph's edges in
 //! the inner window, in both windows, and in the whole graph, the windows being those of
@@ -32,19 +25,22 @@
 use crate::sensor::{MonoSensor, Sensor, StereoSensor};
 use crate::trajectory::{centre, circle, helix, spiral};
 use crate::world::{box_walls, ring};
-use geom::align::{align_se3, align_sim3};
 use geom::{PinholeCamera, StereoCamera};
 use lie::{LieGroup, Se3, Sim3};
-use nalgebra::{SVector, Vector2, Vector3};
+use nalgebra::{SVector, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use slam::ba::Projector;
 use slam::dwo::{ConstraintInformation, DoubleWindowOptimiser, DwoParams, DwoStats};
-use slam::graph::{KeyframeId, PointId, SlamGraph};
-use slam::registration::{self, MetricLoopParams};
+use slam::factors::InverseDepthCamera;
+use slam::map::{KeyframeId, PointId, SlamGraph};
+use slam::mapping::{
+    AppearanceMatch, FrontEnd, KeyframePipeline, KeyframeReport, Mapper, MappingConfig,
+    MappingError,
+};
+use slam::tracking::{self, TrackId};
 use std::collections::{BTreeMap, BTreeSet};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// The simulated scenarios of thesis §6.5.1.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -60,14 +56,36 @@ pub enum Scenario {
     DoubleLoop,
 }
 
-/// The camera.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SensorKind {
-    /// Rectified stereo, f = 300, baseline 5 cm, 640×480.
-    Stereo,
-    /// Monocular, f = 300, 640×480.
-    Mono,
+impl Scenario {
+    /// Every scenario.
+    pub const ALL: [Scenario; 3] = [Scenario::Spiral, Scenario::Room, Scenario::DoubleLoop];
+
+    /// A command-line friendly name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Scenario::Spiral => "spiral",
+            Scenario::Room => "room",
+            Scenario::DoubleLoop => "double-loop",
+        }
+    }
+
+    /// One line on what it is.
+    pub fn description(self) -> &'static str {
+        match self {
+            Scenario::Spiral => {
+                "500 keyframes on a helix through a tunnel, every place seen on two successive loops: loopy motion with exploration (Figures 6.9–6.10)"
+            }
+            Scenario::Room => {
+                "500 keyframes on a planar coil in a small room, all of it in view from the first loop: loopy browsing without exploration"
+            }
+            Scenario::DoubleLoop => {
+                "two loops of 150 keyframes on a 40 m circle, monocular scale drift (Figures 6.11–6.12)"
+            }
+        }
+    }
 }
+
+pub use crate::sensor::SensorKind;
 
 /// The optimisation methods compared in thesis §6.5.1.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -101,13 +119,13 @@ impl Method {
         }
     }
 
-    /// A file-name friendly name.
+    /// A file-name and command-line friendly name.
     pub fn slug(self) -> &'static str {
         match self {
             Method::FullBa => "ba",
             Method::Cdwo => "cdwo",
             Method::Gdwo => "gdwo",
-            Method::CdwoFixedOuter => "cdwo_fixed",
+            Method::CdwoFixedOuter => "cdwo-fixed",
         }
     }
 }
@@ -204,48 +222,22 @@ pub fn double_loop_world(seed: u64, per_loop: usize) -> World {
     }
 }
 
-/// A simulated camera: the sensor, its measurement model, and how a point is initialised.
+/// A simulated camera: the sensor and its measurement model.
 pub trait SimCamera<const N: usize>: Sensor<N> {
     /// The measurement model.
-    type Projector: Projector<N> + Clone;
+    type Camera: InverseDepthCamera<N>;
     /// The measurement model.
-    fn projector(&self) -> Self::Projector;
-    /// `ψ` from one measurement (stereo: from the disparity), or `None` (monocular).
-    fn inverse_depth_from_one_view(&self, z: &SVector<f64, N>) -> Option<Vector3<f64>>;
-    /// The viewing ray `(x/z, y/z, 1)` of a measurement.
-    fn ray(&self, z: &SVector<f64, N>) -> Vector3<f64>;
-    /// Whether relative translations are compared up to scale (monocular).
-    fn scale_free(&self) -> bool;
+    fn camera(&self) -> Self::Camera;
     /// Focal length (pixels).
     fn focal(&self) -> f64;
     /// Stereo baseline (m; 0 for monocular).
     fn baseline(&self) -> f64;
 }
 
-fn pinhole_ray(c: &PinholeCamera, u: f64, v: f64) -> Vector3<f64> {
-    Vector3::new((u - c.cx) / c.fx, (v - c.cy) / c.fy, 1.0)
-}
-
 impl SimCamera<3> for StereoSensor {
-    type Projector = StereoCamera;
-    fn projector(&self) -> StereoCamera {
+    type Camera = StereoCamera;
+    fn camera(&self) -> StereoCamera {
         self.camera
-    }
-    fn inverse_depth_from_one_view(&self, z: &Vector3<f64>) -> Option<Vector3<f64>> {
-        // Depth f·b/d (thesis eq. 6.6); points with under one pixel of disparity are too far.
-        let d = z.x - z.z;
-        if d < 1.0 {
-            return None;
-        }
-        let ray = self.ray(z);
-        let inverse_depth = d / (self.camera.pinhole.fx * self.camera.baseline);
-        Some(Vector3::new(ray.x, ray.y, inverse_depth))
-    }
-    fn ray(&self, z: &Vector3<f64>) -> Vector3<f64> {
-        pinhole_ray(&self.camera.pinhole, z.x, z.y)
-    }
-    fn scale_free(&self) -> bool {
-        false
     }
     fn focal(&self) -> f64 {
         self.camera.pinhole.fx
@@ -256,18 +248,9 @@ impl SimCamera<3> for StereoSensor {
 }
 
 impl SimCamera<2> for MonoSensor {
-    type Projector = PinholeCamera;
-    fn projector(&self) -> PinholeCamera {
+    type Camera = PinholeCamera;
+    fn camera(&self) -> PinholeCamera {
         self.camera
-    }
-    fn inverse_depth_from_one_view(&self, _: &Vector2<f64>) -> Option<Vector3<f64>> {
-        None
-    }
-    fn ray(&self, z: &Vector2<f64>) -> Vector3<f64> {
-        pinhole_ray(&self.camera, z.x, z.y)
-    }
-    fn scale_free(&self) -> bool {
-        true
     }
     fn focal(&self) -> f64 {
         self.camera.fx
@@ -335,6 +318,16 @@ impl RunConfig {
         p.fix_outer = fix;
         p.information = self.information;
         p
+    }
+
+    /// The keyframe pipeline's parameters for `N`-dimensional measurements with noise `sigma`
+    /// on 640×480 images (the simulated cameras'), with this run's `Θ` and `N2`.
+    pub fn mapping(&self, sigma: f64, measurement_dimension: usize) -> MappingConfig {
+        MappingConfig {
+            theta: self.theta,
+            n2: self.n2,
+            ..MappingConfig::new(sigma, (640.0, 480.0), measurement_dimension)
+        }
     }
 }
 
@@ -411,29 +404,13 @@ pub struct RunResult {
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
-    /// Tracking or registration failed.
+    /// A stage of the keyframe pipeline failed.
     #[error("keyframe {keyframe}: {source}")]
-    Registration {
+    Pipeline {
         /// Keyframe index.
         keyframe: usize,
         /// The cause.
-        source: registration::RegistrationError,
-    },
-    /// The optimisation failed.
-    #[error("keyframe {keyframe}: {source}")]
-    Optimisation {
-        /// Keyframe index.
-        keyframe: usize,
-        /// The cause.
-        source: slam::dwo::DwoError,
-    },
-    /// A graph operation failed.
-    #[error("keyframe {keyframe}: {source}")]
-    Graph {
-        /// Keyframe index.
-        keyframe: usize,
-        /// The cause.
-        source: slam::graph::GraphError,
+        source: MappingError,
     },
     /// The world has fewer than two keyframes.
     #[error("a run needs at least two keyframes")]
@@ -511,43 +488,170 @@ fn edges_within<const N: usize>(
                 k.edges()
                     .keys()
                     .filter(|&&b| a < b && set.contains(&b))
-                    .map(|&b| (a, b)),
+                    .map(|&b| (a.index(), b.index())),
             );
         }
     }
     out
 }
 
-/// Midpoint triangulation of two rays given as `T⁻¹(λ·ray)`; returns the point in the frame
-/// of `t_a` if it lies in front of both cameras and the rays' parallax exceeds `min_parallax`
-/// radians.
-fn triangulate(
-    t_a: &Sim3,
-    ray_a: &Vector3<f64>,
-    t_b: &Sim3,
-    ray_b: &Vector3<f64>,
-    min_parallax: f64,
-) -> Option<Vector3<f64>> {
-    let (ia, ib) = (t_a.inverse(), t_b.inverse());
-    let (ca, cb) = (ia.act(&Vector3::zeros()), ib.act(&Vector3::zeros()));
-    let da = (ia.act(ray_a) - ca).normalize();
-    let db = (ib.act(ray_b) - cb).normalize();
-    let cos = da.dot(&db);
-    if cos > min_parallax.cos() {
-        return None;
+/// The simulated front-end (see the module docs): data association by world point, the
+/// injected appearance loop closures, the guided search of metric loop closure, and the true
+/// poses of a monocular run's first keyframes.
+pub struct SimFrontEnd<'a, const N: usize> {
+    measurements: &'a [Vec<(usize, SVector<f64, N>)>],
+    truth: &'a [Se3],
+    closures: BTreeMap<usize, usize>,
+    guided_radius: f64,
+    monocular: bool,
+    /// The world point of each graph point (dense: points are never removed here).
+    world_of: Vec<usize>,
+    /// The keyframe being processed.
+    k: usize,
+}
+
+impl<'a, const N: usize> SimFrontEnd<'a, N> {
+    /// A front-end measuring `measurements[k]` at keyframe `k` of `world`.
+    pub fn new(
+        world: &'a World,
+        measurements: &'a [Vec<(usize, SVector<f64, N>)>],
+        guided_radius: f64,
+        monocular: bool,
+    ) -> Self {
+        SimFrontEnd {
+            measurements,
+            truth: &world.camera_from_world,
+            closures: world.appearance_closures.iter().copied().collect(),
+            guided_radius,
+            monocular,
+            world_of: Vec::new(),
+            k: 0,
+        }
     }
-    // Minimise ‖ca + λ·da − cb − μ·db‖².
-    let w = ca - cb;
-    let (b, d, e) = (da.dot(&db), da.dot(&w), db.dot(&w));
-    let denom = 1.0 - b * b;
-    let lambda = (b * e - d) / denom;
-    let mu = (e - b * d) / denom;
-    if lambda <= 0.0 || mu <= 0.0 {
-        return None;
+
+    /// Starts keyframe `k`.
+    pub fn begin(&mut self, k: usize) {
+        self.k = k;
     }
-    let p = (ca + da * lambda + cb + db * mu) / 2.0;
-    let y = t_a.act(&p);
-    (y.z > 0.0).then_some(y)
+
+    fn world_point(&self, p: PointId) -> usize {
+        self.world_of[p.index()]
+    }
+
+    /// The visible local map of `keyframe` (points seen from its `N1`) by world point, the
+    /// lowest point id first when a world point has several.
+    fn local_map(&self, graph: &SlamGraph<N>, keyframe: KeyframeId) -> BTreeMap<usize, PointId> {
+        let mut m = BTreeMap::new();
+        for p in tracking::tracking_candidates(graph, keyframe) {
+            m.entry(self.world_point(p)).or_insert(p);
+        }
+        m
+    }
+
+    /// The world points `keyframe` observes.
+    fn observed(&self, graph: &SlamGraph<N>, keyframe: KeyframeId) -> BTreeSet<usize> {
+        graph.keyframe(keyframe).map_or_else(BTreeSet::new, |kf| {
+            kf.observations()
+                .keys()
+                .map(|&p| self.world_point(p))
+                .collect()
+        })
+    }
+}
+
+impl<const N: usize> FrontEnd<N> for SimFrontEnd<'_, N> {
+    fn match_candidates(
+        &mut self,
+        _: &SlamGraph<N>,
+        candidates: &BTreeSet<PointId>,
+    ) -> Vec<(PointId, SVector<f64, N>)> {
+        let mut by_world: BTreeMap<usize, PointId> = BTreeMap::new();
+        for &p in candidates {
+            by_world.entry(self.world_point(p)).or_insert(p);
+        }
+        self.measurements[self.k]
+            .iter()
+            .filter_map(|(w, z)| by_world.get(w).map(|&p| (p, *z)))
+            .collect()
+    }
+
+    fn given_pose(
+        &mut self,
+        graph: &SlamGraph<N>,
+        matches: &[(PointId, SVector<f64, N>)],
+    ) -> Option<Sim3> {
+        let bootstrap = self.k == 0
+            || (self.monocular && (self.k == 1 || (matches.len() < 6 && graph.num_points() < 30)));
+        bootstrap.then(|| Sim3::from_se3(&self.truth[self.k]))
+    }
+
+    fn recognise_place(
+        &mut self,
+        graph: &SlamGraph<N>,
+        keyframe: KeyframeId,
+    ) -> Option<AppearanceMatch<N>> {
+        let old = KeyframeId::from_index(*self.closures.get(&self.k)?);
+        // The local maps of both places as the place recogniser's correspondences (§6.4.2).
+        let (own, old_points) = (self.local_map(graph, keyframe), self.local_map(graph, old));
+        let correspondences = self.measurements[self.k]
+            .iter()
+            .filter_map(|(w, z)| {
+                let p_old = *old_points.get(w)?;
+                match own.get(w) {
+                    Some(&p_new) if p_new == p_old => None,
+                    here => Some((p_old, *z, here.copied())),
+                }
+            })
+            .collect();
+        Some(AppearanceMatch {
+            old,
+            correspondences,
+        })
+    }
+
+    fn guided_search(
+        &mut self,
+        graph: &SlamGraph<N>,
+        keyframe: KeyframeId,
+        predictions: &[(PointId, SVector<f64, N>)],
+    ) -> Vec<(PointId, SVector<f64, N>)> {
+        let observed = self.observed(graph, keyframe);
+        let wanted: BTreeMap<usize, SVector<f64, N>> = self.measurements[self.k]
+            .iter()
+            .filter(|(w, _)| !observed.contains(w))
+            .map(|(w, z)| (*w, *z))
+            .collect();
+        let mut found: BTreeMap<usize, (PointId, SVector<f64, N>)> = BTreeMap::new();
+        for (p, z_hat) in predictions {
+            let w = self.world_point(*p);
+            if let Some(z) = wanted.get(&w)
+                && !found.contains_key(&w)
+                && (z_hat.fixed_rows::<2>(0) - z.fixed_rows::<2>(0)).norm() <= self.guided_radius
+            {
+                found.insert(w, (*p, *z));
+            }
+        }
+        found.into_values().collect()
+    }
+
+    fn measurements(
+        &mut self,
+        graph: &SlamGraph<N>,
+        keyframe: KeyframeId,
+    ) -> Vec<(TrackId, SVector<f64, N>, bool)> {
+        let observed = self.observed(graph, keyframe);
+        self.measurements[self.k]
+            .iter()
+            .map(|(w, z)| (*w as TrackId, *z, observed.contains(w)))
+            .collect()
+    }
+
+    fn points_created(&mut self, created: &[(TrackId, PointId)]) {
+        for &(track, p) in created {
+            debug_assert_eq!(p.index(), self.world_of.len(), "points are created densely");
+            self.world_of.push(track as usize);
+        }
+    }
 }
 
 /// Runs the simulated SLAM system with one method over `world`; `progress` is called after
@@ -564,319 +668,111 @@ pub fn run<C: SimCamera<N>, const N: usize>(
     if n < 2 {
         return Err(RunError::TooShort);
     }
-    let projector = camera.projector();
     let sigma = camera.sigma();
-    let normalise = camera.scale_free();
-    let mut optimiser = DoubleWindowOptimiser::new(config.dwo_params(
+    let monocular = !C::Camera::MEASURES_DEPTH;
+    let optimiser = DoubleWindowOptimiser::new(config.dwo_params(
         method,
         camera.focal(),
         camera.baseline(),
         sigma,
     ));
-    let loop_params = MetricLoopParams {
-        theta: config.theta,
-        // χ² 95 % quantiles for 2 and 3 degrees of freedom.
-        max_chi2: if N == 2 { 5.99 } else { 7.81 },
-        sigma,
-        image_size: (640.0, 480.0),
-    };
-    let truth = &world.camera_from_world;
-    let closures: BTreeMap<usize, usize> = world.appearance_closures.iter().copied().collect();
+    let mapper = Mapper::new(camera.camera(), config.mapping(sigma, N));
+    let mut pipeline = KeyframePipeline::new(mapper, optimiser);
+    let mut front_end = SimFrontEnd::new(world, measurements, config.guided_radius, monocular);
     let mut graph = SlamGraph::<N>::new();
-    let mut world_of: Vec<usize> = Vec::new(); // graph point → world point
-    // Monocular: measurements waiting for parallax, by world point: (keyframe, z).
-    let mut pending: BTreeMap<usize, Vec<(KeyframeId, SVector<f64, N>)>> = BTreeMap::new();
     let mut records = Vec::with_capacity(n);
-    const PENDING_AGE: usize = 10;
-    // 3D–3D matches needed to accept an injected appearance loop closure: a Sim(3) has 7
-    // degrees of freedom and each match gives 3 equations, so 10 matches over-determine it
-    // more than fourfold.
-    const MIN_APPEARANCE_MATCHES: usize = 10;
-    let min_parallax = 1.5f64.to_radians();
-
     for k in 0..n {
-        let t0 = Instant::now();
-        let meas = &measurements[k];
-        let graph_err = |source| RunError::Graph {
-            keyframe: k,
-            source,
-        };
-        let reg_err = |source| RunError::Registration {
-            keyframe: k,
-            source,
-        };
-        // 1. Tracking.
-        let reference = graph.reference();
-        let mut matched_world = BTreeSet::new();
-        let mut matches: Vec<(PointId, SVector<f64, N>)> = Vec::new();
-        let pose = match reference {
-            None => Sim3::from_se3(&truth[0]),
-            Some(r) => {
-                let mut by_world: BTreeMap<usize, PointId> = BTreeMap::new();
-                for p in registration::tracking_candidates(&graph, r) {
-                    by_world.entry(world_of[p]).or_insert(p);
-                }
-                for (w, z) in meas {
-                    if let Some(&p) = by_world.get(w) {
-                        matches.push((p, *z));
-                        matched_world.insert(*w);
-                    }
-                }
-                if normalise && (k == 1 || (matches.len() < 6 && graph.num_points() < 30)) {
-                    // Monocular bootstrap (the initialisation of a live system is not
-                    // simulated): the first keyframes, until the map has points to track,
-                    // take their true poses, which define the gauge and the scale.
-                    Sim3::from_se3(&truth[k])
-                } else {
-                    let prev = graph.pose(k - 1).map_err(graph_err)?;
-                    let guess = match k.checked_sub(2).and_then(|i| graph.pose(i).ok()) {
-                        Some(prev2) => prev.compose(&prev2.inverse()).compose(&prev),
-                        None => prev,
-                    };
-                    // Keep the reference's scale: the motion is estimated in its metric.
-                    let guess = Sim3::from_se3(
-                        &guess
-                            .compose(&graph.pose(r).map_err(graph_err)?.inverse())
-                            .rigid_part(),
-                    )
-                    .compose(&graph.pose(r).map_err(graph_err)?);
-                    registration::estimate_pose(&graph, r, &matches, &projector, &guess, sigma, 10)
-                        .map_err(reg_err)?
-                        .camera_from_world
-                }
-            }
-        };
-        // 2. The keyframe, its tracked observations, local registration.
-        let kf = graph.add_keyframe(pose);
-        debug_assert_eq!(kf, k);
-        for (p, z) in &matches {
-            graph.add_observation(kf, *p, *z).map_err(graph_err)?;
-        }
-        registration::register_locally(&mut graph, kf, config.theta, reference).map_err(reg_err)?;
-        graph.set_reference(kf).map_err(graph_err)?;
-        // 3. Appearance loop closure injected by the simulator.
-        let mut appearance = false;
-        if let Some(&old) = closures.get(&k) {
-            // The local maps of both places (the points visible from N1 of each keyframe),
-            // as the place recogniser's 3D–3D correspondences (thesis §6.4.2).
-            if graph.keyframe(old).is_none() {
-                return Err(graph_err(slam::graph::GraphError::UnknownKeyframe(old)));
-            }
-            let local_map = |g: &SlamGraph<N>, k: KeyframeId| -> BTreeMap<usize, PointId> {
-                let mut m = BTreeMap::new();
-                for p in registration::tracking_candidates(g, k) {
-                    m.entry(world_of[p]).or_insert(p);
-                }
-                m
-            };
-            let own = local_map(&graph, kf);
-            let old_points = local_map(&graph, old);
-            let (mut target, mut source, mut old_matches) = (Vec::new(), Vec::new(), Vec::new());
-            for (w, z) in meas {
-                let Some(&p_old) = old_points.get(w) else {
-                    continue;
-                };
-                let here = match own.get(w) {
-                    Some(&p_new) if p_new != p_old => graph.point_in_frame(p_new, kf).ok(),
-                    Some(_) => None,
-                    None => camera
-                        .inverse_depth_from_one_view(z)
-                        .map(|psi| slam::ba::inverse_depth_to_point(&psi)),
-                };
-                if let (Some(x), Ok(y)) = (here, graph.point_in_frame(p_old, old)) {
-                    target.push(x);
-                    source.push(y);
-                    old_matches.push((p_old, *z));
-                }
-            }
-            if old_matches.len() >= MIN_APPEARANCE_MATCHES {
-                let relative = if normalise {
-                    align_sim3(&target, &source).ok()
-                } else {
-                    align_se3(&target, &source).ok().map(|t| Sim3::from_se3(&t))
-                };
-                if let Some(query_from_matched) = relative {
-                    registration::close_appearance_loop(
-                        &mut graph,
-                        kf,
-                        old,
-                        query_from_matched,
-                        &old_matches,
-                    )
-                    .map_err(reg_err)?;
-                    matched_world.extend(old_matches.iter().map(|(p, _)| world_of[*p]));
-                    appearance = true;
-                }
-            }
-        }
-        // 4. Metric loop closure: guided search for the points of N2 \ N1.
-        let mut metric_loop_edges = 0;
-        if k >= 2 {
-            let t_kf = graph.pose(kf).map_err(graph_err)?;
-            let wanted: BTreeMap<usize, SVector<f64, N>> = meas
-                .iter()
-                .filter(|(w, _)| !matched_world.contains(w))
-                .map(|(w, z)| (*w, *z))
-                .collect();
-            let mut found: BTreeMap<usize, (PointId, SVector<f64, N>)> = BTreeMap::new();
-            for p in registration::loop_candidates(&graph, kf, config.n2) {
-                let w = world_of[p];
-                let Some(z) = wanted.get(&w) else { continue };
-                if found.contains_key(&w) {
-                    continue;
-                }
-                let Ok(x) = graph.point_world(p) else {
-                    continue;
-                };
-                let Some((z_hat, _)) = projector.project(&t_kf.act(&x)) else {
-                    continue;
-                };
-                if (z_hat.fixed_rows::<2>(0) - z.fixed_rows::<2>(0)).norm() <= config.guided_radius
-                {
-                    found.insert(w, (p, *z));
-                }
-            }
-            let loop_matches: Vec<(PointId, SVector<f64, N>)> = found.values().copied().collect();
-            let closed = registration::close_metric_loops(
-                &mut graph,
-                kf,
-                &loop_matches,
-                &projector,
-                &loop_params,
-            )
-            .map_err(reg_err)?;
-            metric_loop_edges = closed.len();
-            {
-                let observed: BTreeSet<PointId> = graph
-                    .keyframe(kf)
-                    .expect("added")
-                    .observations()
-                    .keys()
-                    .copied()
-                    .collect();
-                matched_world.extend(
-                    loop_matches
-                        .iter()
-                        .filter(|(p, _)| observed.contains(p))
-                        .map(|(p, _)| world_of[*p]),
-                );
-            }
-        }
-        // 5. New points for the remaining measurements.
-        for (w, z) in meas {
-            if matched_world.contains(w) {
-                pending.remove(w);
-                continue;
-            }
-            if let Some(psi) = camera.inverse_depth_from_one_view(z) {
-                let p = graph.add_point(kf, psi, *z).map_err(graph_err)?;
-                debug_assert_eq!(p, world_of.len());
-                world_of.push(*w);
-                continue;
-            }
-            let entry = pending.entry(*w).or_default();
-            entry.retain(|(j, _)| j + PENDING_AGE >= kf);
-            let ray = camera.ray(z);
-            let triangulated = entry.first().and_then(|&(j, z_j)| {
-                let t_j = graph.pose(j).ok()?;
-                let y = triangulate(&t_j, &camera.ray(&z_j), &pose, &ray, min_parallax)?;
-                Some((j, z_j, y))
-            });
-            match triangulated {
-                Some((j, z_j, y)) => {
-                    let psi = Vector3::new(y.x / y.z, y.y / y.z, 1.0 / y.z);
-                    let p = graph.add_point(j, psi, z_j).map_err(graph_err)?;
-                    world_of.push(*w);
-                    for &(i, z_i) in entry.iter().skip(1) {
-                        graph.add_observation(i, p, z_i).map_err(graph_err)?;
-                    }
-                    graph.add_observation(kf, p, *z).map_err(graph_err)?;
-                    pending.remove(w);
-                }
-                None => entry.push((kf, *z)),
-            }
-        }
-        if k % 50 == 0 {
-            pending.retain(|_, v| v.last().is_some_and(|(j, _)| j + PENDING_AGE >= kf));
-        }
-        // The new points may strengthen the edges of this keyframe: register again (adds the
-        // edges to keyframes that now share Θ points; existing edges keep their relative pose).
-        let time_frontend = t0.elapsed();
-        // 6. Optimisation.
-        let stats = if k >= 1 {
-            optimiser
-                .optimise(&mut graph, &projector)
-                .map_err(|source| RunError::Optimisation {
-                    keyframe: k,
-                    source,
-                })?
-        } else {
-            DwoStats::default()
-        };
-        // Evaluation.
-        let estimate: Vec<Sim3> = (0..=k)
-            .map(|i| graph.pose(i).expect("no removals"))
-            .collect();
-        let tree = graph.weighted_bfs(kf, config.inner + config.outer);
-        let inner: BTreeSet<KeyframeId> = tree.order.iter().take(config.inner).copied().collect();
-        let both: BTreeSet<KeyframeId> = tree.order.iter().copied().collect();
-        let all: BTreeSet<KeyframeId> = (0..=k).collect();
-        let rmse = |set: &BTreeSet<KeyframeId>| {
-            relative_translation_rmse(
-                &estimate,
-                truth,
-                edges_within(&graph, set).into_iter(),
-                normalise,
-            )
-        };
-        let rmse_all_pairs = if k % config.all_pairs_every.max(1) == 0
-            || closures.contains_key(&k)
-            || closures.contains_key(&(k + 1))
-            || k + 1 == n
-        {
-            relative_translation_rmse(
-                &estimate,
-                truth,
-                (0..=k).flat_map(|i| (i + 1..=k).map(move |j| (i, j))),
-                normalise,
-            )
-        } else {
-            f64::NAN
-        };
-        let local_scale = if k >= 5 {
-            let est = (estimate[k].inverse().act(&Vector3::zeros())
-                - estimate[k - 5].inverse().act(&Vector3::zeros()))
-            .norm();
-            let tru = (centre(&truth[k]) - centre(&truth[k - 5])).norm();
-            est / tru
-        } else {
-            1.0
-        };
-        records.push(KeyframeRecord {
-            index: k,
-            time_optimise: stats.total().as_secs_f64(),
-            time_setup: stats.time_setup.as_secs_f64(),
-            time_frontend: time_frontend.as_secs_f64(),
-            rmse_inner: rmse(&inner),
-            rmse_both: rmse(&both),
-            rmse_global: rmse(&all),
-            rmse_all_pairs,
-            stats: DwoStatsRecord::from(&stats),
-            metric_loop_edges,
-            appearance_closure: appearance,
-            local_scale,
-            graph_size: (graph.num_keyframes(), graph.num_points(), graph.num_edges()),
-        });
+        front_end.begin(k);
+        let report = pipeline
+            .process_keyframe(&mut graph, &mut front_end)
+            .map_err(|source| RunError::Pipeline {
+                keyframe: k,
+                source,
+            })?;
+        records.push(evaluate(&graph, world, &report, config, k, n));
         progress(k);
     }
-    let camera_from_world = (0..n)
-        .map(|i| graph.pose(i).expect("no removals"))
+    let camera_from_world = graph
+        .keyframes()
+        .map(|(_, kf)| *kf.camera_from_world())
         .collect();
     Ok(RunResult {
         method,
         records,
         camera_from_world,
     })
+}
+
+/// The record of keyframe `k` (of `n`) after the pipeline processed it: the accuracy of the
+/// windows of cDWO around it and, every `all_pairs_every` keyframes and around injected loop
+/// closures, of all pairs of keyframes.
+fn evaluate<const N: usize>(
+    graph: &SlamGraph<N>,
+    world: &World,
+    report: &KeyframeReport,
+    config: &RunConfig,
+    k: usize,
+    n: usize,
+) -> KeyframeRecord {
+    let truth = &world.camera_from_world;
+    // The run never removes keyframes: keyframe i is the i-th.
+    let estimate: Vec<Sim3> = graph
+        .keyframes()
+        .map(|(_, kf)| *kf.camera_from_world())
+        .collect();
+    let normalise = N == 2;
+    let tree = graph.weighted_bfs(report.keyframe, config.inner + config.outer);
+    let inner: BTreeSet<KeyframeId> = tree.order.iter().take(config.inner).copied().collect();
+    let both: BTreeSet<KeyframeId> = tree.order.iter().copied().collect();
+    let all: BTreeSet<KeyframeId> = graph.keyframes().map(|(id, _)| id).collect();
+    let rmse = |set: &BTreeSet<KeyframeId>| {
+        relative_translation_rmse(
+            &estimate,
+            truth,
+            edges_within(graph, set).into_iter(),
+            normalise,
+        )
+    };
+    let closure_near = |i: usize| world.appearance_closures.iter().any(|&(q, _)| q == i);
+    let rmse_all_pairs = if k.is_multiple_of(config.all_pairs_every.max(1))
+        || closure_near(k)
+        || closure_near(k + 1)
+        || k + 1 == n
+    {
+        relative_translation_rmse(
+            &estimate,
+            truth,
+            (0..=k).flat_map(|i| (i + 1..=k).map(move |j| (i, j))),
+            normalise,
+        )
+    } else {
+        f64::NAN
+    };
+    let local_scale = if k >= 5 {
+        let est = (estimate[k].inverse().act(&Vector3::zeros())
+            - estimate[k - 5].inverse().act(&Vector3::zeros()))
+        .norm();
+        let tru = (centre(&truth[k]) - centre(&truth[k - 5])).norm();
+        est / tru
+    } else {
+        1.0
+    };
+    let stats = report.optimisation.clone().unwrap_or_default();
+    KeyframeRecord {
+        index: k,
+        time_optimise: stats.total().as_secs_f64(),
+        time_setup: stats.time_setup.as_secs_f64(),
+        time_frontend: report.time_frontend.as_secs_f64(),
+        rmse_inner: rmse(&inner),
+        rmse_both: rmse(&both),
+        rmse_global: rmse(&all),
+        rmse_all_pairs,
+        stats: DwoStatsRecord::from(&stats),
+        metric_loop_edges: report.metric_loops.len(),
+        appearance_closure: report.appearance_loop.is_some(),
+        local_scale,
+        graph_size: (graph.num_keyframes(), graph.num_points(), graph.num_edges()),
+    }
 }
 
 /// The median of `values` (NaN if empty).

@@ -21,7 +21,7 @@ use crate::trajectory::sideways;
 use crate::world::nested_plane_grid;
 use lie::{LieGroup, Se3};
 use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3};
-use slam::ba::Projector;
+use slam::factors::Projector;
 
 /// Frames captured after `T_0` (thesis §4.3.1).
 pub const FRAMES: usize = 36;
@@ -219,7 +219,7 @@ pub fn doublings(cells: &[Cell], n_values: &[usize]) -> Vec<Doubling> {
 mod tests {
     use super::*;
     use lsq::{Information, Problem};
-    use slam::ba::PointObservation;
+    use slam::factors::PointObservation;
 
     #[test]
     fn schur_covariance_equals_the_full_systems_marginal() {

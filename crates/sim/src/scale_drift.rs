@@ -22,11 +22,11 @@ use nalgebra::{Vector2, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use slam::exploration::{ExplorationConfig, Keyframe, MonoExplorer, TrackId};
-use slam::loop_closure::{
-    CorrectionGroup, LoopClosureConfig, LoopEdge, correct_points, correct_pose_graph,
-    estimate_loop_constraint, matched_views, refine_map, sim3_pose_graph,
-};
+use slam::exploration::{ExplorationConfig, ExploredMap, MonoExplorer, TrackId};
+use slam::loop_closure::constraint::matched_views;
+use slam::loop_closure::correction::{correct_graph, refine_graph, sim3_pose_graph};
+use slam::loop_closure::{CorrectionGroup, LoopClosureConfig, LoopEdge, estimate_loop_constraint};
+use slam::map::KeyframeId;
 use slam::pose_graph::{PoseGraphJacobian, PoseGraphProblem};
 use std::collections::HashSet;
 use std::time::Instant;
@@ -254,19 +254,19 @@ fn explore(
 /// keyframes earlier sharing the most tracks (perfect data association, standing in for
 /// appearance-based detection, thesis §5.3.1), if they share at least `min_matches`.
 fn best_old_keyframe(
-    keyframes: &[Keyframe],
+    map: &ExploredMap,
     current: usize,
     min_gap: usize,
     min_matches: usize,
 ) -> Option<(usize, usize)> {
-    let cur: HashSet<TrackId> = keyframes[current]
+    let cur: HashSet<TrackId> = map.keyframes[current]
         .measurements
         .iter()
         .map(|(t, _)| *t)
         .collect();
     (0..current.saturating_sub(min_gap))
         .map(|i| {
-            let shared = keyframes[i]
+            let shared = map.keyframes[i]
                 .measurements
                 .iter()
                 .filter(|(t, _)| cur.contains(t))
@@ -290,18 +290,20 @@ fn close_and_evaluate(
     exploration_seconds: f64,
     frames: usize,
 ) -> Result<LoopRun, ScaleDriftError> {
-    let (keyframes, points) = explorer.into_map();
+    let map = explorer.into_map();
+    let graph = &map.graph;
     // The map's scale at a keyframe: median ratio of estimated to true depth of its points.
-    let map_scale = |k: &Keyframe| -> f64 {
-        let mut r: Vec<f64> = k
-            .observations
-            .iter()
-            .map(|(p, _)| {
-                let est = k.camera_from_world.act(&points[*p].point_world).z;
-                let truth = truth_all[k.frame]
-                    .act(&world_points[points[*p].track as usize])
-                    .z;
-                est / truth
+    let map_scale = |k: KeyframeId| -> f64 {
+        let frame = map.keyframe(k).frame;
+        let mut r: Vec<f64> = graph
+            .keyframe(k)
+            .expect("a keyframe of the map")
+            .observations()
+            .keys()
+            .filter_map(|&p| {
+                let est = graph.point_in_frame(p, k).ok()?.z;
+                let truth = truth_all[frame].act(&world_points[map.track(p) as usize]).z;
+                Some(est / truth)
             })
             .filter(|r| r.is_finite() && *r > 0.0)
             .collect();
@@ -318,7 +320,13 @@ fn close_and_evaluate(
     };
     let mut loops = Vec::new();
     for &(old, current) in pairs {
-        let (view_old, view_cur) = matched_views(&keyframes[old], &keyframes[current], &points);
+        let (k_old, k_cur) = (KeyframeId::from_index(old), KeyframeId::from_index(current));
+        let (view_old, view_cur) = matched_views(
+            graph,
+            (k_old, &map.keyframe(k_old).measurements),
+            (k_cur, &map.keyframe(k_cur).measurements),
+            &|p| map.track(p),
+        );
         let c = estimate_loop_constraint(&sensor.camera, &view_old, &view_cur, &lc).map_err(
             |source| ScaleDriftError::LoopClosure {
                 old,
@@ -334,25 +342,29 @@ fn close_and_evaluate(
             },
             matches: c.with_depth,
             inliers: c.inliers.len(),
-            true_scale: map_scale(&keyframes[old]) / map_scale(&keyframes[current]),
+            true_scale: map_scale(k_old) / map_scale(k_cur),
         });
     }
-    let explored: Vec<Se3> = keyframes.iter().map(|k| k.camera_from_world).collect();
-    let truth: Vec<Se3> = keyframes.iter().map(|k| truth_all[k.frame]).collect();
+    let explored = map.rigid_poses();
+    let truth: Vec<Se3> = map.keyframes.iter().map(|k| truth_all[k.frame]).collect();
     let edges: Vec<LoopEdge> = loops.iter().map(|l| l.edge).collect();
     let options = SolverOptions {
         max_iterations: 50,
         ..SolverOptions::default()
     };
     let jac = PoseGraphJacobian::Analytic(settings.jacobian);
-    let se3 = correct_pose_graph(&explored, &edges, CorrectionGroup::Se3, jac, &options)?;
-    let sim3 = correct_pose_graph(&explored, &edges, CorrectionGroup::Sim3, jac, &options)?;
-    let corrected_points = correct_points(&points, &explored, &sim3.similarities);
-    let (refined, _) = refine_map(
+    let se3 = correct_graph(
+        &mut map.graph.clone(),
+        &edges,
+        CorrectionGroup::Se3,
+        jac,
+        &options,
+    )?;
+    let mut corrected = map.graph.clone();
+    let sim3 = correct_graph(&mut corrected, &edges, CorrectionGroup::Sim3, jac, &options)?;
+    let refined = refine_graph(
+        &mut corrected,
         &sensor.camera,
-        &sim3.camera_from_world,
-        &corrected_points,
-        &points,
         settings.sigma.max(0.1),
         2.0,
         settings.full_ba,
@@ -373,7 +385,7 @@ fn close_and_evaluate(
         refined_sim3: refined,
         loops,
         frames,
-        points: points.len(),
+        points: map.graph.num_points(),
         exploration_seconds,
     })
 }
@@ -448,10 +460,10 @@ pub fn run_circle(
     let start = Instant::now();
     let explorer = explore(&sensor, &config.settings, &frames, on_frame)?;
     let seconds = start.elapsed().as_secs_f64();
-    let n = explorer.keyframes().len();
+    let n = explorer.map().keyframes.len();
     let gap = (n / 2).max(1);
     let current = n - 1;
-    let (old, _) = best_old_keyframe(explorer.keyframes(), current, gap, 20)
+    let (old, _) = best_old_keyframe(explorer.map(), current, gap, 20)
         .ok_or_else(|| ScaleDriftError::NoLoop("the last keyframe sees no old one".into()))?;
     close_and_evaluate(
         &sensor,
@@ -530,8 +542,8 @@ pub fn run_sphere(
     let start = Instant::now();
     let explorer = explore(&sensor, &config.settings, &frames, on_frame)?;
     let seconds = start.elapsed().as_secs_f64();
-    let kfs = explorer.keyframes();
-    let n = kfs.len();
+    let kfs = explorer.map();
+    let n = kfs.keyframes.len();
     // An earlier turn: at least half a turn's worth of keyframes back.
     let gap = ((n as f64 / config.turns) * 0.5).ceil() as usize;
     let candidates: Vec<(usize, usize)> = (0..n)

@@ -6,7 +6,30 @@ use lie::{LieGroup, Se3};
 use nalgebra::{SVector, Vector2, Vector3};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use slam::ba::{Observation, Projector};
+use slam::ba::Observation;
+use slam::factors::Projector;
+
+/// The kind of simulated camera.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum SensorKind {
+    /// Rectified stereo.
+    Stereo,
+    /// Monocular.
+    Mono,
+}
+
+impl SensorKind {
+    /// Both, stereo first.
+    pub const ALL: [SensorKind; 2] = [SensorKind::Stereo, SensorKind::Mono];
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            SensorKind::Stereo => "stereo",
+            SensorKind::Mono => "mono",
+        }
+    }
+}
 
 /// A camera that sees a point when it projects inside the image and lies within a depth
 /// range, and measures it with isotropic Gaussian noise of `sigma` pixels.

@@ -5,7 +5,8 @@ use lie::LieGroup;
 use lsq::{LinearSolver, SolverOptions};
 use nalgebra::Vector2;
 use sim::ba_scene::{CircleSceneParams, circle_scene, perturb, to_bal};
-use slam::ba::{BaMode, BalAdjustment, BalCameraState, BundleAdjustment, Gauge};
+use slam::ba::{BaMode, BalAdjustment, BundleAdjustment, Gauge};
+use slam::factors::BalCameraState;
 
 /// RMS of the whitened residual per coordinate, `√(χ²/m)`, in units of σ.
 fn rms_in_sigma(chi2: f64, coordinates: usize) -> f64 {

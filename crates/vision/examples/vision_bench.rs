@@ -7,7 +7,9 @@
 //!   vision_bench orb IMG NFEATURES
 //!   vision_bench lk IMG0 IMG1 POINTS.txt LEVELS  (points: "u v" per line; prints tracks)
 //!   vision_bench stereo LEFT RIGHT MAXDISP BLOCK OUT.f32
-//!   vision_bench tvl1 IMG0 IMG1 OUT         (writes OUT.du, OUT.dv as raw f32)
+//!   vision_bench tvl1 IMG0 IMG1 OUT [ITERATIONS [WARPS]]
+//!                                           (writes OUT.du, OUT.dv as raw f32; default params
+//!                                           unless ITERATIONS / WARPS per warp are given)
 
 use std::time::Instant;
 use vision::fast::fast9_pyramid;
@@ -25,9 +27,14 @@ fn thread_cpu_ns() -> Option<u64> {
         .ok()
 }
 
-/// Runs `f` repeatedly (at least `min_reps` times, and for at least 1 s of CPU time when
-/// `min_reps > 1`) and returns the mean CPU milliseconds per call (wall clock if no CPU clock).
+/// Runs `f` repeatedly (at least `min_reps` times, and for at least `VISION_BENCH_BUDGET`
+/// seconds of CPU time, default 1, when `min_reps > 1`) and returns the mean CPU milliseconds
+/// per call (wall clock if no CPU clock).
 fn time_ms<T>(min_reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    let budget: f64 = std::env::var("VISION_BENCH_BUDGET")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1.0);
     let wall = Instant::now();
     let cpu0 = thread_cpu_ns();
     let mut reps = 0usize;
@@ -38,7 +45,7 @@ fn time_ms<T>(min_reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
             (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
             _ => wall.elapsed().as_secs_f64(),
         };
-        if reps >= min_reps && (min_reps <= 1 || spent >= 1.0 || reps >= 500) {
+        if reps >= min_reps && (min_reps <= 1 || spent >= budget || reps >= 500) {
             return (spent * 1e3 / reps as f64, out);
         }
     }
@@ -89,10 +96,23 @@ fn main() {
                 num_features: n,
                 ..Default::default()
             };
-            let (ms, (k, _)) = time_ms(5, || {
+            let (ms, (k, d)) = time_ms(5, || {
                 vision::orb::detect_and_describe(&img, &params).expect("orb")
             });
-            println!("{}", serde_json::json!({"ms": ms, "keypoints": k.len()}));
+            // A digest of the keypoints and descriptors, to compare two builds' results.
+            let mut digest = 0xcbf2_9ce4_8422_2325u64;
+            let mut mix = |x: u64| digest = (digest ^ x).wrapping_mul(0x0100_0000_01b3);
+            for (kp, desc) in k.iter().zip(&d) {
+                mix(kp.u.to_bits() as u64);
+                mix(kp.v.to_bits() as u64);
+                mix(kp.angle.to_bits() as u64);
+                mix(kp.response.to_bits() as u64);
+                desc.iter().for_each(|&w| mix(w));
+            }
+            println!(
+                "{}",
+                serde_json::json!({"ms": ms, "keypoints": k.len(), "digest": format!("{digest:016x}")})
+            );
         }
         "lk" => {
             let i0 = load_gray_u8(arg(2)).expect("image 0");
@@ -138,7 +158,13 @@ fn main() {
         "tvl1" => {
             let i0 = load_gray_u8(arg(2)).expect("image 0");
             let i1 = load_gray_u8(arg(3)).expect("image 1");
-            let params = vision::tvl1::Tvl1Params::default();
+            let mut params = vision::tvl1::Tvl1Params::default();
+            if let Some(it) = a.get(5) {
+                params.iterations = it.parse().expect("iterations");
+            }
+            if let Some(wp) = a.get(6) {
+                params.warps = wp.parse().expect("warps");
+            }
             let (ms, f) = time_ms(1, || {
                 vision::tvl1::tvl1_flow(&i0, &i1, &params).expect("flow")
             });

@@ -33,6 +33,9 @@ pub struct DenseParams {
     pub min_gradient: f32,
     /// Stop a level when the update `‖δ‖` is below this.
     pub min_update: f64,
+    /// The finest level optimised (0: full resolution). A prior for a guided search needs no
+    /// more than the level whose pixel is the search's tolerance.
+    pub finest_level: usize,
 }
 
 impl Default for DenseParams {
@@ -44,6 +47,7 @@ impl Default for DenseParams {
             huber_scale: 1.345,
             min_gradient: 2.0,
             min_update: 1e-6,
+            finest_level: 0,
         }
     }
 }
@@ -53,9 +57,9 @@ impl Default for DenseParams {
 pub struct DenseResult {
     /// The estimated transformation from the reference camera frame to the current one.
     pub cur_from_ref: Se3,
-    /// Final robust cost `Σρ(r²)/N` at level 0.
+    /// Final robust cost `Σρ(r²)/N` at the finest level optimised.
     pub final_cost: f64,
-    /// Number of residuals used at level 0 in the last iteration.
+    /// Number of residuals used at the finest level in the last iteration.
     pub num_residuals: usize,
     /// Gauss-Newton iterations over all levels.
     pub iterations: usize,
@@ -157,16 +161,33 @@ pub fn align(
     }
     let pr = Pyramid::new(reference, params.levels.max(1), 16)?;
     let pc = Pyramid::new(current, params.levels.max(1), 16)?;
-    let levels = pr.len().min(pc.len());
+    align_pyramids(&pr, depth, &pc, camera, initial_cur_from_ref, params)
+}
+
+/// [`align`] on pyramids built already (the live tracker builds each frame's once): level 0 of
+/// `reference` and `depth` have the same size, `camera` is level 0's.
+pub fn align_pyramids(
+    pr: &Pyramid,
+    depth: &Image<f32>,
+    pc: &Pyramid,
+    camera: &PinholeCamera,
+    initial_cur_from_ref: &Se3,
+    params: &DenseParams,
+) -> Result<DenseResult, DenseError> {
+    let levels = pr.len().min(pc.len()).min(params.levels.max(1));
+    if levels == 0 {
+        return Err(DenseError::TooFewPixels(0));
+    }
+    let finest = params.finest_level.min(levels - 1);
     let mut t = *initial_cur_from_ref;
     let mut iterations = 0;
     let mut final_cost = f64::NAN;
     let mut num_residuals = 0;
-    for l in (0..levels).rev() {
+    for l in (finest..levels).rev() {
         let cam = camera.scaled(0.5f64.powi(l as i32));
         let data = level_points(&pr.levels[l], depth, &cam, l, params.min_gradient);
         if data.points.len() < 6 {
-            if l == 0 {
+            if l == finest {
                 return Err(DenseError::TooFewPixels(data.points.len()));
             }
             continue;
@@ -216,7 +237,7 @@ pub fn align(
             cost /= res.len() as f64;
             final_cost = cost;
             num_residuals = res.len();
-            if cost > last_cost * (1.0 + 1e-9) && l == 0 {
+            if cost > last_cost * (1.0 + 1e-9) && l == finest {
                 // Should not happen often with IRLS; stop rather than diverge.
                 break;
             }
@@ -333,6 +354,46 @@ mod tests {
         );
         let res = residual_image(&iref, &dref, &icur, &cam, &r.cur_from_ref);
         assert_eq!(res.width(), 160);
+    }
+
+    #[test]
+    fn stopping_at_a_coarser_level_is_a_coarser_prior() {
+        // The same motion, aligned down to level 1 only (the live tracker's prior) on prebuilt
+        // pyramids: close to the truth, and the residual count is level 1's.
+        let cam = PinholeCamera::new(200.0, 200.0, 79.5, 59.5);
+        let cur_from_world = Se3::exp(&Vector6::new(0.03, -0.02, 0.04, 0.01, -0.015, 0.02));
+        let (iref, dref) = render(&cam, &Se3::identity(), 160, 120);
+        let (icur, _) = render(&cam, &cur_from_world, 160, 120);
+        let params = DenseParams {
+            levels: 3,
+            finest_level: 1,
+            ..Default::default()
+        };
+        let (pr, pc) = (
+            Pyramid::new(&iref, 3, 16).unwrap(),
+            Pyramid::new(&icur, 3, 16).unwrap(),
+        );
+        let coarse = align_pyramids(&pr, &dref, &pc, &cam, &Se3::identity(), &params).unwrap();
+        let full = align(
+            &iref,
+            &dref,
+            &icur,
+            &cam,
+            &Se3::identity(),
+            &DenseParams {
+                levels: 3,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let err = coarse.cur_from_ref.compose(&cur_from_world.inverse()).log();
+        assert!(err.norm() < 1e-2, "level-1 prior error {}", err.norm());
+        assert!(
+            coarse.num_residuals < full.num_residuals / 2,
+            "{} vs {}",
+            coarse.num_residuals,
+            full.num_residuals
+        );
     }
 
     #[test]

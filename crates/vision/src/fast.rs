@@ -67,10 +67,9 @@ pub fn fast_score(img: &GrayImage, u: usize, v: usize, threshold: u8) -> i32 {
 #[inline(always)]
 fn score_from_circle(centre: u8, p: &[u8; 16], threshold: u8) -> i32 {
     #[cfg(target_arch = "x86_64")]
-    {
-        simd::score(centre, p, threshold)
+    if crate::simd::enabled() {
+        return simd::score(centre, p, threshold);
     }
-    #[cfg(not(target_arch = "x86_64"))]
     {
         let c = centre as i16;
         let d: [i16; 16] = std::array::from_fn(|k| c - p[k] as i16);
@@ -106,14 +105,28 @@ pub fn fast9_level(
     nonmax_suppression: bool,
     level: usize,
 ) -> Vec<Corner> {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { fast9_avx2(img, threshold, nonmax_suppression, level) };
-        }
+    if crate::simd::avx2() {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { fast9_avx2(img, threshold, nonmax_suppression, level) };
     }
-    fast9_impl::<16>(img, threshold, nonmax_suppression, level, false)
+    let mode = if cfg!(target_arch = "x86_64") && crate::simd::enabled() {
+        Mode::Sse2
+    } else {
+        Mode::Scalar
+    };
+    fast9_impl::<16>(img, threshold, nonmax_suppression, level, mode)
+}
+
+/// Which row test [`fast9_impl`] runs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    /// The portable reference (lane arrays the compiler may vectorise, then the exact test).
+    Scalar,
+    /// SSE2 pre-test and arc test (x86-64 baseline).
+    Sse2,
+    /// The same with AVX2, 32 pixels per step.
+    Avx2,
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -124,7 +137,7 @@ unsafe fn fast9_avx2(
     nonmax_suppression: bool,
     level: usize,
 ) -> Vec<Corner> {
-    fast9_impl::<32>(img, threshold, nonmax_suppression, level, true)
+    fast9_impl::<32>(img, threshold, nonmax_suppression, level, Mode::Avx2)
 }
 
 #[inline(always)]
@@ -133,9 +146,8 @@ fn fast9_impl<const LANES: usize>(
     threshold: u8,
     nonmax_suppression: bool,
     level: usize,
-    use_avx2: bool,
+    mode: Mode,
 ) -> Vec<Corner> {
-    let _ = use_avx2;
     let (w, h) = (img.width(), img.height());
     if w < 7 || h < 7 {
         return Vec::new();
@@ -154,7 +166,6 @@ fn fast9_impl<const LANES: usize>(
     for y in 3..h - 3 {
         let base = y * img.stride() + 3;
         let centre = &data[base..base + n];
-        #[cfg(not(target_arch = "x86_64"))]
         let ring = |k: usize| {
             let start = (base as isize + offsets[k]) as usize;
             &data[start..start + n]
@@ -162,11 +173,11 @@ fn fast9_impl<const LANES: usize>(
         candidates.clear();
         certain.clear();
         #[cfg(target_arch = "x86_64")]
-        {
+        if mode != Mode::Scalar {
             // SAFETY: AVX2 is used only if the CPU has it; SSE2 is part of x86-64. Loads stay
             // inside the image: the chunk lies in columns 3..w−3 and rows y ± 3 exist.
             unsafe {
-                if use_avx2 {
+                if mode == Mode::Avx2 {
                     simd::row_corners_avx2(
                         data,
                         base,
@@ -189,15 +200,12 @@ fn fast9_impl<const LANES: usize>(
                 }
             }
         }
-        #[cfg(not(target_arch = "x86_64"))]
         let rings: [&[u8]; 16] = std::array::from_fn(ring);
         // Quick rejection (vectorised, as OpenCV's scalar pre-test): an arc of 9 contiguous
         // circle pixels contains one pixel of every diametric pair (k, k + 8), so a bright
         // (dark) corner needs, for all k < 8, pixel k or pixel k + 8 bright (dark).
-        #[cfg(not(target_arch = "x86_64"))]
         let mut x = 0;
-        #[cfg(not(target_arch = "x86_64"))]
-        while x < n {
+        while mode == Mode::Scalar && x < n {
             let m = LANES.min(n - x);
             let mut flags = [0u8; LANES];
             if m == LANES {
@@ -340,8 +348,8 @@ fn fast9_impl<const LANES: usize>(
 /// pixels (0 & 4, 4 & 8, 8 & 12 or 12 & 0) both brighter or both darker, since any arc of 9
 /// contiguous circle pixels contains two adjacent compass pixels — then, for chunks with a
 /// survivor, the full arc test on all lanes. Corner columns (relative to the first detection
-/// column) go to `certain`; the columns of the row's tail (shorter than a vector) go to `out`
-/// for the scalar exact test. Unsigned byte comparisons are done as signed ones after flipping
+/// column) go to `certain`; the row's last columns are covered by one more vector that overlaps
+/// the previous one (only rows shorter than a vector go to `out` for the scalar exact test). Unsigned byte comparisons are done as signed ones after flipping
 /// the top bit.
 #[cfg(target_arch = "x86_64")]
 mod simd {
@@ -355,9 +363,26 @@ mod simd {
             let delta = $set1(i8::MIN);
             let t = $set1($threshold as i8);
             let p = $data.as_ptr();
+            let full: u32 = if $lanes == 32 {
+                u32::MAX
+            } else {
+                (1u32 << $lanes) - 1
+            };
             let mut x = 0usize;
-            while x + $lanes <= $n {
-                let at = (p as isize + ($base + x) as isize) as *const u8;
+            loop {
+                // The row's last columns (fewer than a vector) are covered by one more vector
+                // ending at column n, overlapping the previous one; `keep` drops the lanes
+                // already tested, so every column is tested once and `certain` stays sorted.
+                let (xc, keep) = if x + $lanes <= $n {
+                    (x, full)
+                } else if x < $n && $n >= $lanes {
+                    let xc = $n - $lanes;
+                    (xc, full & !((1u32 << (x - xc)) - 1))
+                } else {
+                    break;
+                };
+                x = xc + $lanes;
+                let at = (p as isize + ($base + xc) as isize) as *const u8;
                 let c = $load(at as *const $ty);
                 let v1 = $xor($adds(c, t), delta);
                 let v0 = $xor($subs(c, t), delta);
@@ -373,9 +398,8 @@ mod simd {
                 bright = $or(bright, $and($cmpgt(x2, v1), $cmpgt(x3, v1)));
                 dark = $or(dark, $and($cmpgt(v0, x3), $cmpgt(v0, x0)));
                 bright = $or(bright, $and($cmpgt(x3, v1), $cmpgt(x0, v1)));
-                let pre = $movemask($or(dark, bright)) as u32;
+                let pre = keep & $movemask($or(dark, bright)) as u32;
                 if pre == 0 {
-                    x += $lanes;
                     continue;
                 }
                 // Full test for all lanes: lengths of runs of consecutive dark / bright pixels
@@ -395,12 +419,11 @@ mod simd {
                 let k8 = $set1(8);
                 let mut mask = pre & $movemask($or($cmpgt(m0, k8), $cmpgt(m1, k8))) as u32;
                 while mask != 0 {
-                    $certain.push(x + mask.trailing_zeros() as usize);
+                    $certain.push(xc + mask.trailing_zeros() as usize);
                     mask &= mask - 1;
                 }
-                x += $lanes;
             }
-            // The tail goes straight to the exact test.
+            // Rows shorter than a vector go straight to the exact test.
             $out.extend(x..$n);
         }};
     }
@@ -669,14 +692,25 @@ mod tests {
     }
 
     #[test]
-    fn portable_and_dispatched_paths_agree() {
-        for seed in 0..3 {
-            let img = noise_image(97, 41, seed);
-            for nms in [false, true] {
-                assert_eq!(
-                    fast9_impl::<16>(&img, 25, nms, 0, false),
-                    fast9_level(&img, 25, nms, 0)
-                );
+    fn scalar_sse2_and_avx2_paths_agree() {
+        // Widths around the vector lengths exercise the overlapped last vector of a row.
+        for (seed, (w, h)) in [(97, 41), (38, 9), (39, 12), (45, 20), (70, 17), (131, 30)]
+            .into_iter()
+            .enumerate()
+        {
+            let img = noise_image(w, h, seed as u64);
+            for t in [5, 25] {
+                for nms in [false, true] {
+                    let scalar = fast9_impl::<16>(&img, t, nms, 0, Mode::Scalar);
+                    assert_eq!(fast9_impl::<16>(&img, t, nms, 0, Mode::Sse2), scalar);
+                    assert_eq!(crate::simd::scalar_only(|| fast9(&img, t, nms)), scalar);
+                    assert_eq!(fast9_level(&img, t, nms, 0), scalar, "{w}×{h} t={t}");
+                    if crate::simd::avx2() {
+                        // SAFETY: the CPU supports AVX2 (checked just above).
+                        let avx2 = unsafe { fast9_avx2(&img, t, nms, 0) };
+                        assert_eq!(avx2, scalar);
+                    }
+                }
             }
         }
     }

@@ -19,6 +19,7 @@ pub mod orb;
 pub mod patch;
 pub mod pyramid;
 pub mod quadtree;
+pub mod simd;
 pub mod stereo;
 pub mod tvl1;
 pub mod undistort;

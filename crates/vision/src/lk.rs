@@ -8,7 +8,6 @@
 //! Coarse-to-fine: the displacement found on level `l + 1` (doubled) initialises level `l`.
 
 use crate::image::Image;
-use crate::interp::Pixel;
 use crate::pyramid::Pyramid;
 
 /// Parameters of [`track`].
@@ -44,55 +43,171 @@ impl Default for LkParams {
 
 /// Samples the `n×n` patch whose top-left sample is at real coordinates `(x, y)` with bilinear
 /// interpolation (the weights are the same for all samples); coordinates are clamped to the
-/// image (border replication). Writes `n·n` values into `out`.
+/// image (border replication). Writes `n·n` values into `out`; `block` is scratch for the
+/// clamped `(n+1)²` source block at the border.
+///
+/// Every sample is `((w₀₀·I₀₀ + w₁₀·I₁₀) + w₀₁·I₀₁) + w₁₁·I₁₁` in f32, evaluated in this order
+/// on both paths, so the AVX2 kernel ([`bilinear_block_avx2`]) gives the scalar path's values
+/// bit for bit.
 #[inline(always)]
-fn sample_patch<T: Pixel>(img: &Image<T>, x: f32, y: f32, n: usize, out: &mut [f32]) {
+fn sample_patch<const AVX2: bool>(
+    img: &Image<u8>,
+    x: f32,
+    y: f32,
+    n: usize,
+    out: &mut [f32],
+    block: &mut Vec<u8>,
+) {
     let xf = x.floor();
     let yf = y.floor();
     let a = x - xf;
     let b = y - yf;
-    let (w00, w10, w01, w11) = ((1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b);
+    let wts = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
     let (x0, y0) = (xf as i64, yf as i64);
     let (w, h) = (img.width() as i64, img.height() as i64);
-    if x0 >= 0 && y0 >= 0 && x0 + (n as i64) < w && y0 + (n as i64) < h {
-        let x0 = x0 as usize;
-        for r in 0..n {
-            let ra = &img.row(y0 as usize + r)[x0..x0 + n + 1];
-            let rb = &img.row(y0 as usize + r + 1)[x0..x0 + n + 1];
-            let o = &mut out[r * n..(r + 1) * n];
-            for i in 0..n {
-                o[i] = w00 * ra[i].to_f32()
-                    + w10 * ra[i + 1].to_f32()
-                    + w01 * rb[i].to_f32()
-                    + w11 * rb[i + 1].to_f32();
-            }
-        }
-    } else {
-        // Border: clamp the column indices once, then gather row by row.
-        let mut small = [0usize; 64];
-        let mut large = Vec::new();
-        let cols: &mut [usize] = if n < 64 {
-            &mut small[..n + 1]
+    let (src, stride): (&[u8], usize) =
+        if x0 >= 0 && y0 >= 0 && x0 + (n as i64) < w && y0 + (n as i64) < h {
+            let st = img.stride();
+            (&img.data()[y0 as usize * st + x0 as usize..], st)
         } else {
-            large.resize(n + 1, 0);
-            &mut large
+            // Border: copy the clamped (n+1)² source block once, then sample it as above.
+            block.clear();
+            // Columns x0 + i for i in 0..=n: clamped to the left for i < lo, copied for
+            // lo ≤ i < hi, clamped to the right for i ≥ hi.
+            let lo = (-x0).clamp(0, n as i64 + 1) as usize;
+            let hi = (w - x0).clamp(lo as i64, n as i64 + 1) as usize;
+            for r in 0..=n as i64 {
+                let row = img.row((y0 + r).clamp(0, h - 1) as usize);
+                block.extend(std::iter::repeat_n(row[0], lo));
+                if hi > lo {
+                    let c0 = (x0 + lo as i64) as usize;
+                    block.extend_from_slice(&row[c0..c0 + (hi - lo)]);
+                }
+                block.extend(std::iter::repeat_n(row[row.len() - 1], n + 1 - hi));
+            }
+            (&block[..], n + 1)
         };
-        for (i, c) in cols.iter_mut().enumerate() {
-            *c = (x0 + i as i64).clamp(0, w - 1) as usize;
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 && n >= 8 {
+        // SAFETY: AVX2 instances are only called after `simd::avx2()`; `src` holds n+1 rows of
+        // n+1 pixels at `stride` (checked above for the image, built for the block).
+        unsafe { bilinear_block_avx2(src, stride, n, wts, out) };
+        return;
+    }
+    bilinear_block_scalar(src, stride, n, wts, out);
+}
+
+/// The scalar reference of [`sample_patch`]'s inner loops over an `(n+1)²` block.
+#[inline(always)]
+fn bilinear_block_scalar(src: &[u8], stride: usize, n: usize, wts: [f32; 4], out: &mut [f32]) {
+    let [w00, w10, w01, w11] = wts;
+    for r in 0..n {
+        let ra = &src[r * stride..r * stride + n + 1];
+        let rb = &src[(r + 1) * stride..(r + 1) * stride + n + 1];
+        let o = &mut out[r * n..(r + 1) * n];
+        for i in 0..n {
+            o[i] = w00 * ra[i] as f32
+                + w10 * ra[i + 1] as f32
+                + w01 * rb[i] as f32
+                + w11 * rb[i + 1] as f32;
         }
+    }
+}
+
+/// AVX2 kernel of [`sample_patch`]: eight samples per step (bytes widened to i32, converted to
+/// f32, the same four products summed in the same order, no FMA); the last step of a row
+/// overlaps the previous one, recomputing identical values. Needs `n ≥ 8`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn bilinear_block_avx2(src: &[u8], stride: usize, n: usize, wts: [f32; 4], out: &mut [f32]) {
+    use std::arch::x86_64::*;
+    debug_assert!(n >= 8 && src.len() > n * stride + n && out.len() >= n * n);
+    // SAFETY: loads read src[r·stride + i .. + 9] and src[(r+1)·stride + i .. + 9] with
+    // i ≤ n − 8, inside the (n+1)² block; stores write out[r·n + i .. + 8] ⊂ out[..n²].
+    unsafe {
+        let [w00, w10, w01, w11] = wts.map(|v| _mm256_set1_ps(v));
+        let p = src.as_ptr();
+        let o = out.as_mut_ptr();
+        let ld = |q: *const u8| {
+            _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(q as *const __m128i)))
+        };
         for r in 0..n {
-            let ra = img.row((y0 + r as i64).clamp(0, h - 1) as usize);
-            let rb = img.row((y0 + r as i64 + 1).clamp(0, h - 1) as usize);
-            let o = &mut out[r * n..(r + 1) * n];
-            for i in 0..n {
-                let (c0, c1) = (cols[i], cols[i + 1]);
-                o[i] = w00 * ra[c0].to_f32()
-                    + w10 * ra[c1].to_f32()
-                    + w01 * rb[c0].to_f32()
-                    + w11 * rb[c1].to_f32();
+            let ra = p.add(r * stride);
+            let rb = p.add((r + 1) * stride);
+            let mut i = 0;
+            loop {
+                let i0 = i.min(n - 8);
+                let v = _mm256_add_ps(
+                    _mm256_add_ps(
+                        _mm256_add_ps(
+                            _mm256_mul_ps(w00, ld(ra.add(i0))),
+                            _mm256_mul_ps(w10, ld(ra.add(i0 + 1))),
+                        ),
+                        _mm256_mul_ps(w01, ld(rb.add(i0))),
+                    ),
+                    _mm256_mul_ps(w11, ld(rb.add(i0 + 1))),
+                );
+                _mm256_storeu_ps(o.add(r * n + i0), v);
+                i = i0 + 8;
+                if i >= n {
+                    break;
+                }
             }
         }
     }
+}
+
+/// `b = Σ_x ∇T(x)ᵀ (I(x + g) − T(x))`, as `(b_x, b_y)`, with 8 lane-wise partial sums (lane `i`
+/// accumulates elements `i, i + 8, …`), the lanes then summed in order and the remainder added:
+/// the same order on both paths, so the AVX2 kernel matches the scalar one bit for bit.
+#[inline(always)]
+fn residual_dot<const AVX2: bool>(cur: &[f32], tmpl: &[f32], gx: &[f32], gy: &[f32]) -> (f32, f32) {
+    const L: usize = 8;
+    let len = cur.len();
+    assert!(tmpl.len() == len && gx.len() == len && gy.len() == len);
+    let full = len / L * L;
+    let mut ax = [0.0f32; L];
+    let mut ay = [0.0f32; L];
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        use std::arch::x86_64::*;
+        // SAFETY: AVX2 instances run only after `simd::avx2()`; loads read k..k+8 ≤ full ≤ len
+        // of four slices of length len (asserted above).
+        unsafe {
+            let (mut vx, mut vy) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+            for k in (0..full).step_by(L) {
+                let e = _mm256_sub_ps(
+                    _mm256_loadu_ps(cur.as_ptr().add(k)),
+                    _mm256_loadu_ps(tmpl.as_ptr().add(k)),
+                );
+                vx = _mm256_add_ps(vx, _mm256_mul_ps(_mm256_loadu_ps(gx.as_ptr().add(k)), e));
+                vy = _mm256_add_ps(vy, _mm256_mul_ps(_mm256_loadu_ps(gy.as_ptr().add(k)), e));
+            }
+            _mm256_storeu_ps(ax.as_mut_ptr(), vx);
+            _mm256_storeu_ps(ay.as_mut_ptr(), vy);
+        }
+    }
+    if !(cfg!(target_arch = "x86_64") && AVX2) {
+        for (((c, t), gx), gy) in cur[..full]
+            .chunks_exact(L)
+            .zip(tmpl[..full].chunks_exact(L))
+            .zip(gx[..full].chunks_exact(L))
+            .zip(gy[..full].chunks_exact(L))
+        {
+            for i in 0..L {
+                let e = c[i] - t[i];
+                ax[i] += gx[i] * e;
+                ay[i] += gy[i] * e;
+            }
+        }
+    }
+    let (mut bx, mut by) = (ax.iter().sum::<f32>(), ay.iter().sum::<f32>());
+    for i in full..len {
+        let e = cur[i] - tmpl[i];
+        bx += gx[i] * e;
+        by += gy[i] * e;
+    }
+    (bx, by)
 }
 
 /// Scratch buffers for one point.
@@ -102,6 +217,7 @@ struct Work {
     gx: Vec<f32>,
     gy: Vec<f32>,
     cur: Vec<f32>,
+    block: Vec<u8>,
 }
 
 impl Work {
@@ -112,6 +228,7 @@ impl Work {
             gx: vec![0.0; n * n],
             gy: vec![0.0; n * n],
             cur: vec![0.0; n * n],
+            block: Vec::with_capacity((n + 3) * (n + 3)),
         }
     }
 }
@@ -119,9 +236,9 @@ impl Work {
 /// Tracks one point on one level: template centred at `p` in `prev`, initial displacement `g`.
 /// Returns the refined displacement or `None` if the window is untextured.
 #[inline(always)]
-fn track_level<T: Pixel>(
-    prev: &Image<T>,
-    next: &Image<T>,
+fn track_level<const AVX2: bool>(
+    prev: &Image<u8>,
+    next: &Image<u8>,
     p: [f32; 2],
     g: [f32; 2],
     params: &LkParams,
@@ -131,22 +248,58 @@ fn track_level<T: Pixel>(
     let n = 2 * r + 1;
     let nb = n + 2;
     let rf = r as f32;
-    sample_patch(prev, p[0] - rf - 1.0, p[1] - rf - 1.0, nb, &mut wk.big);
-    let (mut hxx, mut hxy, mut hyy) = (0.0f32, 0.0f32, 0.0f32);
+    sample_patch::<AVX2>(
+        prev,
+        p[0] - rf - 1.0,
+        p[1] - rf - 1.0,
+        nb,
+        &mut wk.big,
+        &mut wk.block,
+    );
+    // Template and central-difference gradients, row by row (vectorisable), then the
+    // structure tensor with lane-wise accumulators (the same order on every path).
     for y in 0..n {
+        let (up, mid, down) = (
+            &wk.big[y * nb..(y + 1) * nb],
+            &wk.big[(y + 1) * nb..(y + 2) * nb],
+            &wk.big[(y + 2) * nb..(y + 3) * nb],
+        );
+        let t = &mut wk.tmpl[y * n..(y + 1) * n];
+        let gxr = &mut wk.gx[y * n..(y + 1) * n];
+        let gyr = &mut wk.gy[y * n..(y + 1) * n];
         for x in 0..n {
-            let c = (y + 1) * nb + x + 1;
-            let gx = 0.5 * (wk.big[c + 1] - wk.big[c - 1]);
-            let gy = 0.5 * (wk.big[c + nb] - wk.big[c - nb]);
-            let i = y * n + x;
-            wk.tmpl[i] = wk.big[c];
-            wk.gx[i] = gx;
-            wk.gy[i] = gy;
+            t[x] = mid[x + 1];
+            gxr[x] = 0.5 * (mid[x + 2] - mid[x]);
+            gyr[x] = 0.5 * (down[x + 1] - up[x + 1]);
+        }
+    }
+    let (hxx, hxy, hyy) = {
+        const L: usize = 8;
+        let (mut axx, mut axy, mut ayy) = ([0.0f32; L], [0.0f32; L], [0.0f32; L]);
+        let full = n * n / L * L;
+        for (gx, gy) in wk.gx[..full]
+            .chunks_exact(L)
+            .zip(wk.gy[..full].chunks_exact(L))
+        {
+            for i in 0..L {
+                axx[i] += gx[i] * gx[i];
+                axy[i] += gx[i] * gy[i];
+                ayy[i] += gy[i] * gy[i];
+            }
+        }
+        let (mut hxx, mut hxy, mut hyy) = (
+            axx.iter().sum::<f32>(),
+            axy.iter().sum::<f32>(),
+            ayy.iter().sum::<f32>(),
+        );
+        for i in full..n * n {
+            let (gx, gy) = (wk.gx[i], wk.gy[i]);
             hxx += gx * gx;
             hxy += gx * gy;
             hyy += gy * gy;
         }
-    }
+        (hxx, hxy, hyy)
+    };
     let npx = (n * n) as f32;
     let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt()) / npx;
     let det = hxx * hyy - hxy * hxy;
@@ -165,30 +318,8 @@ fn track_level<T: Pixel>(
         {
             return None;
         }
-        sample_patch(next, qx - rf, qy - rf, n, &mut wk.cur);
-        // Lane-wise accumulators so that the reduction vectorises.
-        const L: usize = 8;
-        let mut ax = [0.0f32; L];
-        let mut ay = [0.0f32; L];
-        let full = wk.cur.len() / L * L;
-        for (((c, t), gx), gy) in wk.cur[..full]
-            .chunks_exact(L)
-            .zip(wk.tmpl[..full].chunks_exact(L))
-            .zip(wk.gx[..full].chunks_exact(L))
-            .zip(wk.gy[..full].chunks_exact(L))
-        {
-            for i in 0..L {
-                let e = c[i] - t[i];
-                ax[i] += gx[i] * e;
-                ay[i] += gy[i] * e;
-            }
-        }
-        let (mut bx, mut by) = (ax.iter().sum::<f32>(), ay.iter().sum::<f32>());
-        for i in full..wk.cur.len() {
-            let e = wk.cur[i] - wk.tmpl[i];
-            bx += wk.gx[i] * e;
-            by += wk.gy[i] * e;
-        }
+        sample_patch::<AVX2>(next, qx - rf, qy - rf, n, &mut wk.cur, &mut wk.block);
+        let (bx, by) = residual_dot::<AVX2>(&wk.cur, &wk.tmpl, &wk.gx, &wk.gy);
         let dx = ixx * bx + ixy * by;
         let dy = ixy * bx + iyy * by;
         if dx * dx + dy * dy < params.epsilon * params.epsilon {
@@ -227,12 +358,12 @@ pub fn track(
 ) -> Vec<Option<[f32; 2]>> {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if crate::simd::avx2() {
             // SAFETY: the CPU supports AVX2 (checked just above).
             return unsafe { track_avx2(prev, next, points, initial, params) };
         }
     }
-    track_impl(prev, next, points, initial, params)
+    track_impl::<false>(prev, next, points, initial, params)
 }
 
 /// [`track_impl`] compiled for AVX2 (runtime dispatch; identical arithmetic, wider vectors).
@@ -245,11 +376,11 @@ unsafe fn track_avx2(
     initial: Option<&[[f32; 2]]>,
     params: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
-    track_impl(prev, next, points, initial, params)
+    track_impl::<true>(prev, next, points, initial, params)
 }
 
 #[inline(always)]
-fn track_impl(
+fn track_impl<const AVX2: bool>(
     prev: &Pyramid,
     next: &Pyramid,
     points: &[[f32; 2]],
@@ -280,7 +411,7 @@ fn track_impl(
         for l in (0..levels).rev() {
             let s = (1u32 << l) as f32;
             let pl = [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
-            match track_level(&prev_f[l], &next_f[l], pl, g, params, &mut wk) {
+            match track_level::<AVX2>(&prev_f[l], &next_f[l], pl, g, params, &mut wk) {
                 Some(x) => g = x,
                 None => {
                     out.push(None);
@@ -360,6 +491,40 @@ mod tests {
             assert!(
                 (q[0] - p[0] - 3.4).abs() < 0.15 && (q[1] - p[1] + 2.2).abs() < 0.15,
                 "{p:?} -> {q:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn simd_and_scalar_paths_agree_bit_for_bit() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        // Random texture (noise, half-sampled once for some smoothness) and a shifted copy;
+        // points everywhere, including at and beyond the border (clamped block path).
+        for (w, h) in [(97, 61), (160, 45)] {
+            let noise = GrayImage::from_fn(2 * w, 2 * h, |_, _| rng.random());
+            let a = crate::pyramid::half_sample(&noise).unwrap();
+            let b = GrayImage::from_fn(w, h, |u, v| a.get((u + 1).min(w - 1), v.saturating_sub(2)));
+            let pa = Pyramid::new(&a, 3, 8).unwrap();
+            let pb = Pyramid::new(&b, 3, 8).unwrap();
+            let pts: Vec<[f32; 2]> = (0..200)
+                .map(|_| {
+                    [
+                        rng.random_range(-3.0..w as f32 + 3.0),
+                        rng.random_range(-3.0..h as f32 + 3.0),
+                    ]
+                })
+                .collect();
+            let params = LkParams {
+                levels: 3,
+                ..Default::default()
+            };
+            let fast = track(&pa, &pb, &pts, None, &params);
+            let scalar = crate::simd::scalar_only(|| track(&pa, &pb, &pts, None, &params));
+            assert_eq!(fast, scalar);
+            assert!(
+                fast.iter().filter(|t| t.is_some()).count() > 50,
+                "tracks something"
             );
         }
     }

@@ -68,6 +68,87 @@ fn euroc_images_decode_and_fast_runs() {
     }
 }
 
+/// The SIMD kernels and their scalar reference paths (`vision::simd::scalar_only`) give the
+/// same results on real frames of EuRoC, KITTI and 7-Scenes: pyramids, FAST, ORB, LK
+/// (bit for bit: the arithmetic is the same, only the vector width differs), stereo and TV-L1 on
+/// a Middlebury pair.
+#[test]
+fn simd_and_scalar_paths_agree_on_real_frames() {
+    use vision::simd::scalar_only;
+    let mut frames = Vec::new();
+    if let Some(root) = data_dir("euroc_v1_01_easy_micro") {
+        let rig = EurocStereo::load(&root);
+        frames.push((rig.left_raw(20), rig.left_raw(21)));
+    }
+    if let Some(k) = data_dir("kitti_odometry_snippets/KITTI_sequence_1/image_l") {
+        let f = |i: usize| load_gray_u8(k.join(format!("{i:06}.png"))).unwrap();
+        frames.push((f(0), f(1)));
+    }
+    if let Some(ss) = data_dir("seven_scenes_redkitchen_1000") {
+        let f = |i: usize| load_gray_u8(ss.join(format!("rgb/frame-{i:06}.color.jpg"))).unwrap();
+        frames.push((f(100), f(101)));
+    }
+    for (a, b) in &frames {
+        let both = |f: &dyn Fn() -> String| (f(), scalar_only(f));
+        let (pa, pb) = (
+            Pyramid::new(a, 4, 8).unwrap(),
+            Pyramid::new(b, 4, 8).unwrap(),
+        );
+        let (fast, reference) = both(&|| {
+            let p = Pyramid::new(a, 4, 8).unwrap();
+            let c = vision::fast::fast9_pyramid(&p, 20, true);
+            format!(
+                "{:?} {:?}",
+                p.levels
+                    .iter()
+                    .map(|l| l.data().to_vec())
+                    .collect::<Vec<_>>(),
+                c
+            )
+        });
+        assert_eq!(fast, reference, "pyramid + FAST");
+        let (fast, reference) = both(&|| {
+            format!(
+                "{:?}",
+                detect_and_describe(a, &OrbParams::default()).unwrap()
+            )
+        });
+        assert_eq!(fast, reference, "ORB");
+        let corners = vision::fast::fast9(a, 30, true);
+        let pts: Vec<[f32; 2]> = corners.iter().step_by(7).map(|c| [c.u, c.v]).collect();
+        let (fast, reference) = both(&|| {
+            let t = vision::lk::track(&pa, &pb, &pts, None, &vision::lk::LkParams::default());
+            format!("{t:?}")
+        });
+        assert_eq!(fast, reference, "LK over {} points", pts.len());
+    }
+    if let Some(dir) = data_dir("middlebury_stereo") {
+        let d = dir.join("tsukuba");
+        let (l, r) = (
+            load_gray_u8(d.join("im3.png")).unwrap(),
+            load_gray_u8(d.join("im4.png")).unwrap(),
+        );
+        let params = StereoParams {
+            max_disparity: 15,
+            ..Default::default()
+        };
+        let f = || format!("{:?}", block_match(&l, &r, &params).unwrap().data());
+        assert_eq!(f(), vision::simd::scalar_only(f), "stereo");
+        let tv = vision::tvl1::Tvl1Params {
+            levels: 3,
+            warps: 2,
+            iterations: 10,
+            ..Default::default()
+        };
+        let f = || {
+            let flow = vision::tvl1::tvl1_flow(&l, &r, &tv).unwrap();
+            let bits = |i: &Image<f32>| i.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            (bits(&flow.du), bits(&flow.dv))
+        };
+        assert!(f() == vision::simd::scalar_only(f), "TV-L1");
+    }
+}
+
 /// Evaluates our stereo matcher on the three Middlebury pairs (non-occluded mask derived from
 /// the left ground truth, see `nonocc_mask`).
 #[test]

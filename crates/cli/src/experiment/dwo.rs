@@ -1,49 +1,86 @@
 //! `dwslam experiment dwo` and `dwslam demo`: the double window optimisation experiments of
 //! thesis §6.5.1 (Figures 6.9–6.12) on simulated data, with CSV, PNG plots and a summary.
 
+use crate::args::{self, Named, parser};
 use crate::plot::{self, Figure, PALETTE, Series, Style};
-use anyhow::{Context, Result, bail};
-use clap::{Args, ValueEnum};
+use anyhow::{Context, Result};
+use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 use sim::dwo::{
     self, KeyframeRecord, Method, RunConfig, RunResult, Scenario, SensorKind, SimCamera, World,
 };
 use sim::sensor::{MonoSensor, StereoSensor};
+use slam::dwo::ConstraintInformation;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// The scenario.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum ScenarioArg {
-    /// 500 keyframes on a helix through a tunnel, every place seen on two successive loops:
-    /// loopy motion with exploration (Figures 6.9–6.10).
-    Spiral,
-    /// 500 keyframes on a planar coil in a small room, all of it in view from the first loop:
-    /// loopy browsing without exploration.
-    Room,
-    /// Two loops of 150 keyframes on a 40 m circle, monocular scale drift (Figures 6.11–6.12).
-    DoubleLoop,
+impl Named for Scenario {
+    fn all() -> &'static [Self] {
+        &Scenario::ALL
+    }
+    fn name(self) -> &'static str {
+        Scenario::name(self)
+    }
+    fn help(self) -> &'static str {
+        self.description()
+    }
 }
 
-/// The sensor.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum SensorArg {
-    /// Stereo, f = 300, baseline 5 cm.
-    Stereo,
-    /// Monocular, f = 300.
-    Mono,
+impl Named for SensorKind {
+    fn all() -> &'static [Self] {
+        &SensorKind::ALL
+    }
+    fn name(self) -> &'static str {
+        SensorKind::name(self)
+    }
+    fn help(self) -> &'static str {
+        match self {
+            SensorKind::Stereo => "rectified stereo",
+            SensorKind::Mono => "monocular",
+        }
+    }
+}
+
+impl Named for Method {
+    fn all() -> &'static [Self] {
+        &Method::ALL
+    }
+    fn name(self) -> &'static str {
+        self.slug()
+    }
+    fn help(self) -> &'static str {
+        Method::name(self)
+    }
+}
+
+impl Named for ConstraintInformation {
+    fn all() -> &'static [Self] {
+        &ConstraintInformation::ALL
+    }
+    fn name(self) -> &'static str {
+        ConstraintInformation::name(self)
+    }
+    fn help(self) -> &'static str {
+        match self {
+            ConstraintInformation::Coarse => "thesis eq. 6.2",
+            ConstraintInformation::Marginal => {
+                "pair-wise marginalisation of the points each constraint stands for"
+            }
+        }
+    }
 }
 
 /// Options of `dwslam experiment dwo`.
 #[derive(Args, Debug, Clone)]
 pub struct DwoArgs {
     /// The scenario.
-    #[arg(long, value_enum, default_value_t = ScenarioArg::Spiral)]
-    scenario: ScenarioArg,
-    /// The sensor (default: stereo for the spiral, monocular for the double loop).
-    #[arg(long, value_enum)]
-    sensor: Option<SensorArg>,
+    #[arg(long, value_parser = parser::<Scenario>(), default_value = "spiral")]
+    scenario: Scenario,
+    /// The sensor (default: stereo for the spiral and the room, monocular for the double
+    /// loop; f = 300, stereo baseline 5 cm).
+    #[arg(long, value_parser = parser::<SensorKind>())]
+    sensor: Option<SensorKind>,
     /// Output directory (CSV, PNG plots, summary.json).
     #[arg(long, default_value = "out/dwo")]
     out: PathBuf,
@@ -53,29 +90,21 @@ pub struct DwoArgs {
     /// Seed of the world and the measurement noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Methods to run (default: all four).
-    #[arg(long, value_delimiter = ',')]
-    methods: Option<Vec<String>>,
+    /// Methods to run, comma separated (default: all four).
+    #[arg(long, value_delimiter = ',', value_parser = parser::<Method>())]
+    methods: Option<Vec<Method>>,
     /// Worker threads of the optimiser (the thesis timed one core).
     #[arg(long, default_value_t = 1)]
     threads: usize,
     /// Joint optimisation iterations per keyframe, every method (the thesis: 3).
     #[arg(long, default_value_t = 3)]
     iterations: usize,
-    /// Information of the pose-pose constraints: `marginal` (pair-wise marginalisation of the
-    /// points each constraint stands for) or `coarse` (thesis eq. 6.2).
-    #[arg(long, value_enum, default_value_t = InformationArg::Marginal)]
-    constraint_information: InformationArg,
+    /// Information of the pose-pose constraints.
+    #[arg(long, value_parser = parser::<ConstraintInformation>(), default_value = "marginal")]
+    constraint_information: ConstraintInformation,
     /// Standard deviation of the image noise (pixels; the thesis: 1).
     #[arg(long, default_value_t = 1.0)]
     noise: f64,
-}
-
-/// `--constraint-information`.
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-enum InformationArg {
-    Coarse,
-    Marginal,
 }
 
 impl DwoArgs {
@@ -84,58 +113,36 @@ impl DwoArgs {
     /// `summary.json` into `dwslam-demo/`.
     pub fn demo() -> Self {
         DwoArgs {
-            scenario: ScenarioArg::DoubleLoop,
+            scenario: Scenario::DoubleLoop,
             sensor: None,
             out: PathBuf::from("dwslam-demo"),
             keyframes: None,
             seed: 1,
-            methods: Some(vec!["cdwo".into(), "gdwo".into()]),
+            methods: Some(vec![Method::Cdwo, Method::Gdwo]),
             iterations: 3,
-            constraint_information: InformationArg::Marginal,
+            constraint_information: ConstraintInformation::default(),
             threads: 1,
             noise: 1.0,
         }
     }
 }
 
-fn parse_method(s: &str) -> Result<Method> {
-    Ok(match s.trim().to_ascii_lowercase().as_str() {
-        "ba" => Method::FullBa,
-        "cdwo" => Method::Cdwo,
-        "gdwo" => Method::Gdwo,
-        "cdwo-fixed" | "cdwo_fixed" | "fixed" => Method::CdwoFixedOuter,
-        other => bail!("unknown method {other:?}: expected ba, cdwo, gdwo or cdwo-fixed"),
-    })
-}
-
 /// Runs the experiment and writes its outputs.
 pub fn run(args: DwoArgs) -> Result<()> {
     anyhow::ensure!(args.threads >= 1, "--threads must be at least 1");
     anyhow::ensure!(args.iterations >= 1, "--iterations must be at least 1");
-    anyhow::ensure!(
-        args.noise.is_finite() && args.noise > 0.0,
-        "--noise must be a positive number of pixels (got {})",
-        args.noise
-    );
-    let scenario = match args.scenario {
-        ScenarioArg::Spiral => Scenario::Spiral,
-        ScenarioArg::Room => Scenario::Room,
-        ScenarioArg::DoubleLoop => Scenario::DoubleLoop,
-    };
-    let sensor = match (args.sensor, scenario) {
-        (Some(SensorArg::Stereo), _) | (None, Scenario::Spiral | Scenario::Room) => {
-            SensorKind::Stereo
-        }
-        (Some(SensorArg::Mono), _) | (None, Scenario::DoubleLoop) => SensorKind::Mono,
-    };
-    let methods: Vec<Method> = match &args.methods {
-        None => Method::ALL.to_vec(),
-        Some(list) => list
-            .iter()
-            .map(|s| parse_method(s))
-            .collect::<Result<_>>()?,
-    };
+    args::positive(args.noise, "--noise (pixels)")?;
+    let scenario = args.scenario;
+    let sensor = args.sensor.unwrap_or(match scenario {
+        Scenario::Spiral | Scenario::Room => SensorKind::Stereo,
+        Scenario::DoubleLoop => SensorKind::Mono,
+    });
+    let methods: Vec<Method> = args.methods.clone().unwrap_or_else(|| Method::ALL.to_vec());
     anyhow::ensure!(!methods.is_empty(), "--methods is empty");
+    if let Some(n) = args.keyframes {
+        anyhow::ensure!(n >= 20, "--keyframes must be at least 20 (got {n})");
+    }
+    args::output_dir(&args.out, "--out")?;
     let world = match (scenario, args.keyframes) {
         (Scenario::Spiral, n) => dwo::spiral_world(args.seed, n.unwrap_or(500)),
         (Scenario::Room, n) => dwo::room_world(args.seed, n.unwrap_or(500)),
@@ -148,18 +155,9 @@ pub fn run(args: DwoArgs) -> Result<()> {
             dwo::double_loop_world(args.seed, per_loop)
         }
     };
-    anyhow::ensure!(
-        world.camera_from_world.len() >= 20,
-        "--keyframes must be at least 20"
-    );
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
     let config = RunConfig {
         iterations: args.iterations,
-        information: match args.constraint_information {
-            InformationArg::Coarse => slam::dwo::ConstraintInformation::Coarse,
-            InformationArg::Marginal => slam::dwo::ConstraintInformation::Marginal,
-        },
+        information: args.constraint_information,
         ..RunConfig::for_scenario(scenario, args.seed)
     };
     println!(
@@ -656,8 +654,9 @@ mod tests {
             let e = run(args).expect_err("a non-positive or non-finite noise must be refused");
             assert!(e.to_string().contains("--noise"), "{e}");
         }
+        // Unknown method names are refused by the parser (tests/bad_arguments.rs).
         let args = DwoArgs {
-            methods: Some(vec!["bundle".into()]),
+            methods: Some(Vec::new()),
             out: out.clone(),
             ..DwoArgs::demo()
         };
@@ -665,7 +664,7 @@ mod tests {
             run(args)
                 .unwrap_err()
                 .to_string()
-                .contains("unknown method")
+                .contains("--methods is empty")
         );
         assert!(!out.exists(), "nothing is written for refused options");
     }

@@ -28,16 +28,16 @@ pub enum ExperimentCommand {
 pub struct WhyFilterArgs {
     /// `preliminary` (§4.3), a setting of §4.6.1 (`i`, `ii`, `iii`, `iv`), `motion` (§4.6.3,
     /// Fig. 4.10: the monocular filter's pose prediction by motion-only BA vs Alg. 6), or `all`.
-    #[arg(long, default_value = "all")]
+    #[arg(long, default_value = "all", value_parser = why_filter_settings())]
     setting: String,
     /// Monte Carlo trials per (setting, sensor, M, N) cell (the thesis uses 500).
     #[arg(long, default_value_t = 12)]
     trials: usize,
     /// `stereo`, `mono` or `both`.
-    #[arg(long, default_value = "both")]
+    #[arg(long, default_value = "both", value_parser = why_filter_sensors())]
     sensor: String,
     /// Output directory (CSV, PNG, summary.json).
-    #[arg(long, default_value = "why-filter")]
+    #[arg(long, default_value = "out/why-filter")]
     out: PathBuf,
     /// Master seed.
     #[arg(long, default_value_t = 2012)]
@@ -45,6 +45,26 @@ pub struct WhyFilterArgs {
     /// Worker threads, each running whole trials single-threaded (default: all cores).
     #[arg(long)]
     workers: Option<usize>,
+}
+
+/// The names `--setting` takes: the library's settings and the studies around them.
+fn why_filter_settings() -> clap::builder::PossibleValuesParser {
+    let settings = sim::why_filter::Setting::ALL.map(|s| s.name());
+    clap::builder::PossibleValuesParser::new(
+        std::iter::once("preliminary")
+            .chain(settings)
+            .chain(["motion", "all"]),
+    )
+}
+
+/// The names `--sensor` takes: the library's sensors, or both.
+fn why_filter_sensors() -> clap::builder::PossibleValuesParser {
+    clap::builder::PossibleValuesParser::new(
+        sim::sensor::SensorKind::ALL
+            .map(|s| s.name())
+            .into_iter()
+            .chain(["both"]),
+    )
 }
 
 /// Options of `dwslam experiment cbh-jacobians`.
@@ -56,9 +76,10 @@ pub struct CbhArgs {
     /// Seed of the random draws.
     #[arg(long, default_value_t = 2012)]
     seed: u64,
-    /// Write the table as JSON (`rows`: group, sigma, d_norm, err_j1, err_j2, err_j3).
+    /// Output directory for the table as JSON, `table.json` (`rows`: group, sigma, d_norm,
+    /// err_j1, err_j2, err_j3); without it the table is only printed.
     #[arg(long)]
-    json: Option<PathBuf>,
+    out: Option<PathBuf>,
 }
 
 /// Runs one experiment.
@@ -79,18 +100,14 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
         "motion" => (false, Vec::new(), true),
         s => (
             false,
-            vec![Setting::parse(s).with_context(|| {
-                format!("--setting {s}: expected preliminary, i, ii, iii, iv, motion or all")
-            })?],
+            vec![Setting::parse(s).expect("clap accepts only the listed settings")],
             false,
         ),
     };
-    let sensors = match args.sensor.as_str() {
-        "both" => vec![SensorKind::Stereo, SensorKind::Mono],
-        "stereo" => vec![SensorKind::Stereo],
-        "mono" => vec![SensorKind::Mono],
-        s => anyhow::bail!("--sensor {s}: expected stereo, mono or both"),
-    };
+    let sensors: Vec<SensorKind> = SensorKind::ALL
+        .into_iter()
+        .filter(|k| args.sensor == "both" || args.sensor == k.name())
+        .collect();
     // The pose-prediction study (Fig. 4.10) is about the monocular filter.
     anyhow::ensure!(
         args.setting != "motion" || sensors.contains(&SensorKind::Mono),
@@ -101,12 +118,11 @@ fn run_why_filter(args: WhyFilterArgs) -> Result<()> {
         args.trials >= 2,
         "--trials must be at least 2 (sample covariances)"
     );
+    anyhow::ensure!(args.workers != Some(0), "--workers must be at least 1");
     let workers = args
         .workers
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
-        .max(1);
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    crate::args::output_dir(&args.out, "--out")?;
     let started = std::time::Instant::now();
     let path = args.out.join("summary.json");
     let mut summary = read_summary(&path)?;
@@ -210,6 +226,9 @@ pub(crate) fn progress(len: usize, what: &str) -> indicatif::ProgressBar {
 
 fn run_cbh(args: CbhArgs) -> Result<()> {
     anyhow::ensure!(args.samples > 0, "--samples must be at least 1");
+    if let Some(out) = &args.out {
+        crate::args::output_dir(out, "--out")?;
+    }
     let rows = cbh_jacobians::table(args.seed, args.samples);
     println!(
         "Thesis Table 5.1 — ‖J_num − J_k‖_F of the k-th order CBH pose-graph Jacobian, mean over {} samples (seed {})",
@@ -251,9 +270,10 @@ fn run_cbh(args: CbhArgs) -> Result<()> {
         if ordered { "yes" } else { "NO" },
         if all_agree { "yes" } else { "NO" }
     );
-    if let Some(path) = &args.json {
+    if let Some(out) = &args.out {
+        let path = out.join("table.json");
         let json = serde_json::json!({ "samples": args.samples, "seed": args.seed, "rows": rows });
-        std::fs::write(path, serde_json::to_string_pretty(&json)?)
+        std::fs::write(&path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
     }

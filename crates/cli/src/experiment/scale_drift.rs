@@ -36,7 +36,7 @@ pub struct ScaleDriftArgs {
     #[arg(long, value_enum, default_value_t = Part::All)]
     pub part: Part,
     /// Output directory (CSV, PNG, summary.json); created if missing.
-    #[arg(long, default_value = "docs/experiments/scale-drift")]
+    #[arg(long, default_value = "out/scale-drift")]
     pub out: PathBuf,
     /// Runs per noise level of the circle (the thesis: 10).
     #[arg(long, default_value_t = 10)]
@@ -73,8 +73,10 @@ pub fn run(args: ScaleDriftArgs) -> Result<()> {
     if args.iterations == 0 {
         bail!("--iterations must be at least 1");
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    if args.repeats == 0 {
+        bail!("--repeats must be at least 1");
+    }
+    crate::args::output_dir(&args.out, "--out")?;
     let summary_path = args.out.join("summary.json");
     let mut summary = super::read_summary(&summary_path)?;
     let settings = RunSettings {

@@ -1,0 +1,630 @@
+//! `dwslam run PATH`: the live system on a recorded sequence (thesis §6.3–6.5): every frame's
+//! pose and the map, with a progress bar, a clean stop on Ctrl-C, ATE/RPE at the end when the
+//! sequence has ground truth, and a report of pictures.
+
+use crate::args;
+use crate::plot::{self, Figure, GREY, PALETTE, Series, Style};
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use data::camera::SensorModel;
+use data::eval::{Alignment, ate, rpe};
+use data::output::{OutputOptions, RunOutput, TrackingState};
+use data::sequence::{BadFramePolicy, OpenOptions, Sequence, SequenceFormat};
+use data::trajectory::{Trajectory, associate, write_tum};
+use indicatif::{ProgressBar, ProgressStyle};
+use lie::{LieGroup, Se3};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+use system::config::SystemConfig;
+use system::live::{LiveSystem, Mode, RunResult};
+
+/// Options of `dwslam run`.
+#[derive(Args, Debug, Clone)]
+pub struct RunArgs {
+    /// The sequence: a TUM RGB-D / 7-Scenes, EuRoC, KITTI or image folder (see the README's
+    /// formats).
+    pub path: PathBuf,
+    /// The sensor to run (default: the sequence's own; `rgbd` needs depth images, `stereo` a
+    /// stereo pair).
+    #[arg(long, value_parser = ["stereo", "rgbd"])]
+    pub sensor: Option<String>,
+    /// A YAML file overriding the system's parameters (`system::config::SystemConfig`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Output folder (trajectories, map, summary, report).
+    #[arg(long, default_value = "out/run")]
+    pub out: PathBuf,
+    /// Run the back-end at fixed points of the frame stream (identical outputs run to run)
+    /// instead of in its own thread.
+    #[arg(long)]
+    pub deterministic: bool,
+    /// Process at most this many frames.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Force the sequence's format instead of detecting it.
+    #[arg(long, value_parser = ["tum", "euroc", "kitti", "folder"])]
+    pub format: Option<String>,
+    /// A camera file (dwslam YAML or ORB-SLAM3 settings) overriding the sequence's
+    /// calibration.
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// A bad frame (missing, corrupt, wrong size): `stop` the run, or `skip` it with a warning.
+    #[arg(long, default_value = "stop", value_parser = ["stop", "skip"])]
+    pub on_bad_frame: String,
+    /// RGB-D: only the frames with a depth image (by default frames without one are tracked
+    /// from the colour image against the map).
+    #[arg(long)]
+    pub depth_frames_only: bool,
+    /// Also write the trajectory in KITTI format.
+    #[arg(long)]
+    pub kitti: bool,
+    /// No progress bar (for logs).
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Per frame: the tracker's counts and times (CSV).
+pub const FRAME_STATS_FILE: &str = "frames.csv";
+
+/// The trajectory file of the poses after the run's final optimisation.
+pub const FINAL_TRAJECTORY_FILE: &str = "trajectory_final.tum";
+
+/// Runs the live system on a sequence.
+pub fn run(args: RunArgs) -> Result<()> {
+    // Everything the command line says is checked before any work.
+    args::input_dir(&args.path, "PATH")?;
+    let config = match &args.config {
+        Some(path) => {
+            args::input_file(path, "--config")?;
+            SystemConfig::from_file(path)?
+        }
+        None => SystemConfig::default(),
+    };
+    if let Some(camera) = &args.camera {
+        args::input_file(camera, "--camera")?;
+    }
+    anyhow::ensure!(
+        args.max_frames != Some(0),
+        "--max-frames must be at least 1"
+    );
+    args::output_dir(&args.out, "--out")?;
+    let options = OpenOptions {
+        format: args
+            .format
+            .as_deref()
+            .map(str::parse::<SequenceFormat>)
+            .transpose()
+            .map_err(anyhow::Error::msg)?,
+        camera_file: args.camera.clone(),
+        on_bad_frame: args
+            .on_bad_frame
+            .parse::<BadFramePolicy>()
+            .map_err(anyhow::Error::msg)?,
+        require_depth: args.depth_frames_only,
+        ..OpenOptions::default()
+    };
+    let sequence = Sequence::open(&args.path, &options)?;
+    let info = sequence.info().clone();
+    let sensor = match (args.sensor.as_deref(), &info.camera) {
+        (None | Some("stereo"), SensorModel::Stereo(_))
+        | (None | Some("rgbd"), SensorModel::Rgbd(_)) => info.camera,
+        (Some(want), have) => bail!(
+            "--sensor {want}: {} is a {} sequence",
+            args.path.display(),
+            sensor_name(have)
+        ),
+        (None, SensorModel::Mono(_)) => bail!(
+            "{} is a monocular sequence: the live system runs stereo and RGB-D sequences (monocular is a later issue)",
+            args.path.display()
+        ),
+    };
+    let mode = if args.deterministic {
+        Mode::Deterministic
+    } else {
+        Mode::Threaded
+    };
+    let frames = args
+        .max_frames
+        .map_or(info.frame_count, |m| m.min(info.frame_count));
+    println!(
+        "{} ({}, {} frames, {}×{}, {}){}",
+        args.path.display(),
+        info.format.name(),
+        info.frame_count,
+        info.size.0,
+        info.size.1,
+        sensor_name(&sensor),
+        if info.ground_truth.is_some() {
+            ", with ground truth"
+        } else {
+            ""
+        }
+    );
+    for w in &info.warnings {
+        println!("  note: {w}");
+    }
+    let mut output = RunOutput::create(
+        &args.out,
+        OutputOptions {
+            kitti: args.kitti,
+            ..OutputOptions::default()
+        },
+    )?;
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        // A second Ctrl-C ends the process at once.
+        let _ = ctrlc::set_handler(move || {
+            if stop.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+        });
+    }
+    let name = args.path.display().to_string();
+    let mut system = LiveSystem::new(&sensor, config, mode, &name)?;
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(frames as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "[{bar:30}] {pos}/{len} frames {per_sec} {elapsed_precise} {msg}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    let start = Instant::now();
+    let reader = sequence.into_reader(8);
+    let mut failure: Option<anyhow::Error> = None;
+    let (mut lost, mut weak, mut keyframes) = (0usize, 0usize, 0usize);
+    let mut waited = Instant::now();
+    for item in reader.take(frames) {
+        system.record_timing("reader: wait", waited.elapsed());
+        if stop.load(Ordering::SeqCst) {
+            break;
+        }
+        match item {
+            Ok(frame) => match system.process(frame) {
+                Ok(report) => {
+                    match report.state {
+                        TrackingState::Lost(_) => lost += 1,
+                        TrackingState::Weak(_) => weak += 1,
+                        TrackingState::Good => {}
+                    }
+                    keyframes += report.keyframe.is_some() as usize;
+                }
+                Err(e) => {
+                    failure = Some(e.into());
+                    break;
+                }
+            },
+            Err(e) if options.on_bad_frame == BadFramePolicy::Skip => {
+                bar.println(format!("warning: skipped {e}"));
+                system.skip_frame(e.index, e.timestamp, format!("skipped: {}", e.kind));
+            }
+            Err(e) => {
+                failure = Some(anyhow::Error::new(e).context(
+                    "stopped at a bad frame (--on-bad-frame skip reads past it); the outputs hold the frames before it",
+                ));
+                break;
+            }
+        }
+        if let Some(f) = system.record().frames.last() {
+            output.log_frame(f)?;
+        }
+        bar.inc(1);
+        bar.set_message(format!("{keyframes} keyframes, {weak} weak, {lost} lost"));
+        waited = Instant::now();
+    }
+    let interrupted = stop.load(Ordering::SeqCst) || failure.is_some();
+    bar.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    let result = system.finish(interrupted)?;
+    let processed = result.record.frames.len();
+    println!(
+        "{processed} frames in {seconds:.1} s ({:.1} frames per second), {} keyframes, {} points, {} loop closures{}",
+        processed as f64 / seconds.max(1e-9),
+        result.record.keyframes.len(),
+        result.record.points.len(),
+        result.loops.len(),
+        if stop.load(Ordering::SeqCst) {
+            " — interrupted"
+        } else {
+            ""
+        }
+    );
+    let ground_truth = info.ground_truth.as_ref().map(|g| &g.trajectory);
+    let evaluation = ground_truth.map(|gt| evaluate(gt, &result));
+    let mut record = result.record.clone();
+    record.extra.insert(
+        "run".into(),
+        json!({
+            "mode": match mode { Mode::Threaded => "threaded", Mode::Deterministic => "deterministic" },
+            "seconds": seconds,
+            "frames_per_second": processed as f64 / seconds.max(1e-9),
+        }),
+    );
+    let mut reasons = std::collections::BTreeMap::<&str, usize>::new();
+    for f in &result.frames {
+        if let Some((_, r)) = &f.keyframe {
+            *reasons.entry(r.name()).or_default() += 1;
+        }
+    }
+    record
+        .extra
+        .insert("keyframe_reasons".into(), json!(reasons));
+    record.extra.insert(
+        "loops".into(),
+        json!(
+            result
+                .loops
+                .iter()
+                .map(
+                    |l| json!({"keyframe": l.keyframe.index(), "old": l.old.index(),
+                "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind})
+                )
+                .collect::<Vec<_>>()
+        ),
+    );
+    let dwo: Vec<f64> = result
+        .optimisations
+        .iter()
+        .map(|s| s.total().as_secs_f64() * 1e3)
+        .collect();
+    record.extra.insert(
+        "optimisation".into(),
+        json!({"count": dwo.len(), "median_ms": median(&dwo), "max_ms": dwo.iter().copied().fold(0.0, f64::max)}),
+    );
+    if let Some(e) = &evaluation {
+        record.extra.insert("evaluation".into(), e.json.clone());
+    }
+    output.write(&record, ground_truth)?;
+    let final_path = args.out.join(FINAL_TRAJECTORY_FILE);
+    std::fs::write(&final_path, {
+        let mut buf = Vec::new();
+        write_tum(&result.final_trajectory, &mut buf)?;
+        buf
+    })
+    .with_context(|| format!("writing {}", final_path.display()))?;
+    if let Some(e) = &evaluation {
+        for line in &e.lines {
+            println!("{line}");
+        }
+    }
+    write_frame_stats(&args.out.join(FRAME_STATS_FILE), &result)?;
+    report(&args.out, &result, ground_truth)?;
+    println!("wrote {}", args.out.display());
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
+fn write_frame_stats(path: &Path, result: &RunResult) -> Result<()> {
+    use std::fmt::Write as _;
+    let mut text = String::from(
+        "frame,state,keyframe,candidates,visible,searched,found,inliers,tracking_ms,frame_ms\n",
+    );
+    for f in &result.frames {
+        let s = f.stats.clone().unwrap_or_default();
+        let _ = writeln!(
+            text,
+            "{},{},{},{},{},{},{},{},{:.3},{:.3}",
+            f.index,
+            f.state.name(),
+            f.keyframe.as_ref().map_or(String::new(), |(k, r)| format!(
+                "{}:{}",
+                k.index(),
+                r.name()
+            )),
+            s.candidates,
+            s.visible,
+            s.searched,
+            s.found,
+            s.inliers,
+            f.time_tracking.as_secs_f64() * 1e3,
+            f.time.as_secs_f64() * 1e3
+        );
+    }
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+fn sensor_name(s: &SensorModel) -> &'static str {
+    match s {
+        SensorModel::Mono(_) => "monocular",
+        SensorModel::Stereo(_) => "stereo",
+        SensorModel::Rgbd(_) => "RGB-D",
+    }
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// ATE and RPE of the live and the final trajectory against the ground truth.
+struct Evaluation {
+    json: serde_json::Value,
+    lines: Vec<String>,
+}
+
+fn evaluate(gt: &Trajectory, result: &RunResult) -> Evaluation {
+    let live = result.record.trajectory();
+    let mut json = serde_json::Map::new();
+    let mut lines = Vec::new();
+    for (name, est) in [("live", &live), ("final", &result.final_trajectory)] {
+        let pairs = associate(&gt.timestamps, &est.timestamps, 0.02, 0.0);
+        if pairs.len() < 3 {
+            lines.push(format!(
+                "{name} trajectory: {} poses overlap the ground truth in time: not evaluated",
+                pairs.len()
+            ));
+            continue;
+        }
+        let r: Vec<Se3> = pairs.iter().map(|&(i, _)| gt.world_from_body[i]).collect();
+        let e: Vec<Se3> = pairs.iter().map(|&(_, j)| est.world_from_body[j]).collect();
+        let Ok(a) = ate(&r, &e, Alignment::Se3) else {
+            continue;
+        };
+        let rp = rpe(&r, &e, 1, false, Alignment::Se3).ok();
+        lines.push(format!(
+            "{name} trajectory ({} of {} frames with ground truth): ATE RMSE {:.2} cm (median {:.2}, max {:.2}), RPE {}",
+            pairs.len(),
+            result.record.frames.len(),
+            a.translation.rmse * 100.0,
+            a.translation.median * 100.0,
+            a.translation.max * 100.0,
+            rp.as_ref().map_or("—".into(), |p| format!(
+                "{:.2} mm, {:.3}° per frame",
+                p.translation.rmse * 1e3,
+                p.rotation_rad.rmse.to_degrees()
+            ))
+        ));
+        json.insert(
+            name.into(),
+            json!({
+                "poses": pairs.len(),
+                "ate_rmse_m": a.translation.rmse,
+                "ate_median_m": a.translation.median,
+                "ate_max_m": a.translation.max,
+                "rpe_translation_rmse_m": rp.as_ref().map(|p| p.translation.rmse),
+                "rpe_rotation_rmse_deg": rp.as_ref().map(|p| p.rotation_rad.rmse.to_degrees()),
+                "alignment": "se3",
+            }),
+        );
+    }
+    Evaluation {
+        json: serde_json::Value::Object(json),
+        lines,
+    }
+}
+
+/// The report: trajectory against ground truth (top view), the keyframe graph with its loop
+/// edges, time per frame and per keyframe, tracked points per frame.
+fn report(out: &Path, result: &RunResult, ground_truth: Option<&Trajectory>) -> Result<()> {
+    let live = result.record.trajectory();
+    let xz = |p: &Se3| {
+        let t = p.translation();
+        (t.x, t.z)
+    };
+    // Trajectories, aligned to the ground truth where there is one.
+    let mut series = Vec::new();
+    let aligned = |traj: &Trajectory| -> Vec<(f64, f64)> {
+        match ground_truth {
+            Some(gt) => {
+                let pairs = associate(&gt.timestamps, &traj.timestamps, 0.02, 0.0);
+                let r: Vec<Se3> = pairs.iter().map(|&(i, _)| gt.world_from_body[i]).collect();
+                let e: Vec<Se3> = pairs
+                    .iter()
+                    .map(|&(_, j)| traj.world_from_body[j])
+                    .collect();
+                match ate(&r, &e, Alignment::Se3) {
+                    Ok(a) => e
+                        .iter()
+                        .map(|p| {
+                            let t = a.reference_from_estimate.act(p.translation());
+                            (t.x, t.z)
+                        })
+                        .collect(),
+                    Err(_) => traj.world_from_body.iter().map(xz).collect(),
+                }
+            }
+            None => traj.world_from_body.iter().map(xz).collect(),
+        }
+    };
+    if let Some(gt) = ground_truth {
+        series.push(Series {
+            label: "ground truth".into(),
+            points: gt.world_from_body.iter().map(xz).collect(),
+            color: GREY,
+            style: Style::Line,
+        });
+    }
+    series.push(Series {
+        label: "every frame, live".into(),
+        points: aligned(&live),
+        color: PALETTE[0],
+        style: Style::Line,
+    });
+    series.push(Series {
+        label: "every frame, after the final optimisation".into(),
+        points: aligned(&result.final_trajectory),
+        color: PALETTE[1],
+        style: Style::Dashed,
+    });
+    plot::plot(
+        &out.join("trajectory.png"),
+        &Figure {
+            title: "trajectory (top view, x–z), aligned to the ground truth",
+            x_label: "x (m)",
+            y_label: "z (m)",
+            equal_aspect: true,
+            log_y: false,
+        },
+        &series,
+    )?;
+    // The keyframe graph: keyframe centres, covisibility edges, loop edges.
+    let g = &result.graph;
+    let centre = |k| {
+        g.pose(k).ok().map(|t| {
+            let c = t.inverse().act(&nalgebra::Vector3::zeros());
+            (c.x, c.z)
+        })
+    };
+    let mut edges = Vec::new();
+    for (a, kf) in g.keyframes() {
+        for &b in kf.edges().keys() {
+            if a < b
+                && let (Some(p), Some(q)) = (centre(a), centre(b))
+            {
+                edges.push(p);
+                edges.push(q);
+            }
+        }
+    }
+    let mut loop_edges = Vec::new();
+    for l in &result.loops {
+        if let (Some(p), Some(q)) = (centre(l.keyframe), centre(l.old)) {
+            loop_edges.push(p);
+            loop_edges.push(q);
+        }
+    }
+    plot::plot(
+        &out.join("keyframe_graph.png"),
+        &Figure {
+            title: "keyframe graph (top view): covisibility edges, loop closures",
+            x_label: "x (m)",
+            y_label: "z (m)",
+            equal_aspect: true,
+            log_y: false,
+        },
+        &[
+            Series {
+                label: "covisibility edges".into(),
+                points: edges,
+                color: GREY,
+                style: Style::Segments,
+            },
+            Series {
+                label: format!("loop closures ({})", result.loops.len()),
+                points: loop_edges,
+                color: PALETTE[1],
+                style: Style::Segments,
+            },
+            Series {
+                label: format!("keyframes ({})", g.num_keyframes()),
+                points: g.keyframes().filter_map(|(k, _)| centre(k)).collect(),
+                color: PALETTE[0],
+                style: Style::Points,
+            },
+        ],
+    )?;
+    // Time per frame (tracking thread) and per optimisation.
+    let frame_ms: Vec<(f64, f64)> = result
+        .frames
+        .iter()
+        .map(|f| (f.index as f64, f.time.as_secs_f64() * 1e3))
+        .collect();
+    let tracking_ms: Vec<(f64, f64)> = result
+        .frames
+        .iter()
+        .map(|f| (f.index as f64, f.time_tracking.as_secs_f64() * 1e3))
+        .collect();
+    plot::plot(
+        &out.join("time_per_frame.png"),
+        &Figure {
+            title: "time per frame in the tracking thread",
+            x_label: "frame",
+            y_label: "ms",
+            equal_aspect: false,
+            log_y: false,
+        },
+        &[
+            Series {
+                label: "whole frame (with keyframe stages)".into(),
+                points: frame_ms,
+                color: PALETTE[0],
+                style: Style::Points,
+            },
+            Series {
+                label: "tracking".into(),
+                points: tracking_ms,
+                color: PALETTE[2],
+                style: Style::Points,
+            },
+        ],
+    )?;
+    plot::plot(
+        &out.join("time_per_keyframe.png"),
+        &Figure {
+            title: "double window optimisation per keyframe",
+            x_label: "optimisation",
+            y_label: "ms",
+            equal_aspect: false,
+            log_y: false,
+        },
+        &[Series {
+            label: "set-up, structure and joint iterations, write-back".into(),
+            points: result
+                .optimisations
+                .iter()
+                .enumerate()
+                .map(|(i, s)| (i as f64, s.total().as_secs_f64() * 1e3))
+                .collect(),
+            color: PALETTE[3],
+            style: Style::Points,
+        }],
+    )?;
+    let stat = |f: fn(&system::tracker::TrackerStats) -> usize| -> Vec<(f64, f64)> {
+        result
+            .frames
+            .iter()
+            .filter_map(|r| r.stats.as_ref().map(|s| (r.index as f64, f(s) as f64)))
+            .collect()
+    };
+    plot::plot(
+        &out.join("tracked_points.png"),
+        &Figure {
+            title: "points per frame",
+            x_label: "frame",
+            y_label: "points",
+            equal_aspect: false,
+            log_y: false,
+        },
+        &[
+            Series {
+                label: "visible candidates".into(),
+                points: stat(|s| s.visible),
+                color: GREY,
+                style: Style::Line,
+            },
+            Series {
+                label: "searched".into(),
+                points: stat(|s| s.searched),
+                color: PALETTE[0],
+                style: Style::Line,
+            },
+            Series {
+                label: "found".into(),
+                points: stat(|s| s.found),
+                color: PALETTE[2],
+                style: Style::Line,
+            },
+            Series {
+                label: "inliers".into(),
+                points: stat(|s| s.inliers),
+                color: PALETTE[1],
+                style: Style::Line,
+            },
+        ],
+    )?;
+    Ok(())
+}

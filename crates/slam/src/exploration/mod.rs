@@ -1,0 +1,1046 @@
+//! Monocular exploration (thesis ch. 3): keyframe-based visual odometry with sliding-window
+//! bundle adjustment over measurements whose data association is given (feature tracks from a
+//! front-end, or a simulator).
+//!
+//! For every frame, in order:
+//!
+//! 1. **Bootstrap** (thesis §3.5): until a map exists, the first frame is paired with each new
+//!    one; once their common tracks show enough parallax, the normalised 8-point algorithm in
+//!    RANSAC ([`geom::two_view::relative_pose_ransac`]) gives the relative pose (with the
+//!    cheirality check), the inliers are triangulated, both views are bundle adjusted with the
+//!    first pose fixed and the scale left to the damping (§4.5.3), and the map is scaled so the
+//!    baseline has unit length — the arbitrary scale every monocular map invents.
+//! 2. **Tracking**: the pose is predicted with constant velocity and refined by motion-only BA
+//!    (thesis eq. 4.14) against the active map points measured in this frame, with a Huber
+//!    kernel.
+//! 3. **Keyframe selection by distance** (§3.3.3): a frame becomes a keyframe when its camera
+//!    centre is farther from the last keyframe's than `keyframe_distance` times the median depth
+//!    of its tracked points (a ratio, so it does not depend on the drifting map scale), or when
+//!    too few map points are tracked.
+//! 4. **Feature initialisation** (§3.4.4): every frame updates the inverse-depth filters
+//!    ([`crate::feature_init`]) of the tracks it measures; converged features are promoted to
+//!    map points with their keyframe measurements. In each keyframe, new features are started
+//!    where the feature density is low: candidates are visited in the equi-distributed order of
+//!    thesis Alg. 2 ([`vision::quadtree`]) and accepted when no feature lies within
+//!    `feature_spacing` pixels (the bounding-box test of Mei et al. 2009, Fig. 3.7), until
+//!    `max_features` are tracked. A new filter starts at the median inverse depth of the
+//!    keyframe's map points (no depth prior is imposed: `Λ_ψ` has no depth information).
+//! 5. **Sliding-window BA** (§3.3.3) over the last `window` keyframes, with the first two of
+//!    the window fixed: they anchor the window to the trajectory and fix the scale gauge.
+//!    Points measured at least twice in the window are optimised (eliminated by the Schur
+//!    complement); points measured once are held fixed.
+//!
+//! A track that is not measured in a frame ends: its map point leaves the active set (and its
+//! filter is dropped). A world point seen again later is a new track — only loop closure
+//! ([`crate::loop_closure`]) relates it to the old one.
+//!
+//! The map is a [`SlamGraph`] ([`ExploredMap`]): keyframes with absolute poses (similarities
+//! of scale 1 until a loop correction), points anchored in the keyframe their filter started
+//! in, by inverse depth. The window BA optimises Euclidean points (the parametrisation of
+//! §3.3.3) and writes them back anchored.
+
+pub mod feature_init;
+
+use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
+use crate::factors::point_to_inverse_depth;
+use crate::map::{KeyframeId, PointId, SlamGraph};
+use crate::tracking::{MotionOnlyOptions, motion_only_ba};
+use feature_init::{FeatureFilters, FeatureId, FeatureInitConfig};
+use geom::ransac::RansacConfig;
+use geom::two_view::{relative_pose_ransac, triangulate};
+use geom::{CameraModel, PinholeCamera};
+use lie::{LieGroup, Se3, Sim3};
+use lsq::{RobustKernel, SolverOptions};
+use nalgebra::{Vector2, Vector3};
+use std::collections::BTreeMap;
+use std::collections::{HashMap, HashSet};
+use vision::quadtree::{QuadPoint, QuadTree};
+
+pub use crate::tracking::TrackId;
+
+/// Parameters of [`MonoExplorer`].
+#[derive(Clone, Debug)]
+pub struct ExplorationConfig {
+    /// Pixel noise σ: measurement information `I/σ²`.
+    pub sigma: f64,
+    /// Keyframes in the sliding BA window (thesis §5.4: 10).
+    pub window: usize,
+    /// A keyframe when the distance from the last keyframe exceeds this fraction of the median
+    /// scene depth.
+    pub keyframe_distance: f64,
+    /// A keyframe also when fewer map points than this are tracked.
+    pub min_tracked_for_keyframe: usize,
+    /// Tracking is lost below this many tracked map points.
+    pub min_tracked: usize,
+    /// New features are started until this many are tracked (map points and filters).
+    pub max_features: usize,
+    /// A new feature needs a feature-free box of this half-size (pixels) around it.
+    pub feature_spacing: f64,
+    /// Image width (pixels).
+    pub image_width: f64,
+    /// Image height (pixels).
+    pub image_height: f64,
+    /// The feature-initialisation filters (its `sigma` is set from [`sigma`](Self::sigma)).
+    pub feature_init: FeatureInitConfig,
+    /// Huber kernel width in units of σ.
+    pub huber: f64,
+    /// Levenberg-Marquardt iterations of the window BA.
+    pub ba_iterations: usize,
+    /// Levenberg-Marquardt iterations of motion-only tracking.
+    pub tracking_iterations: usize,
+    /// Minimum median parallax (radians) for the bootstrap.
+    pub min_bootstrap_parallax: f64,
+    /// Minimum fraction of the common tracks that must be inliers of the bootstrap's relative
+    /// pose (a wrong two-view solution explains only a part of the correspondences).
+    pub min_bootstrap_inlier_ratio: f64,
+    /// Give up bootstrapping after this many frames.
+    pub max_bootstrap_frames: usize,
+    /// RANSAC of the bootstrap (threshold in pixels).
+    pub ransac: RansacConfig,
+    /// Seed of the quadtree traversal.
+    pub seed: u64,
+}
+
+impl Default for ExplorationConfig {
+    /// A 640×480 camera with σ = 1 px, a window of 10 keyframes, keyframes every 5 % of the
+    /// scene depth, up to 150 features at least 12 px apart, Huber at 2σ, bootstrap at 2° median
+    /// parallax with a 2 px RANSAC threshold and at least 60 % inliers.
+    fn default() -> Self {
+        ExplorationConfig {
+            sigma: 1.0,
+            window: 10,
+            keyframe_distance: 0.05,
+            min_tracked_for_keyframe: 30,
+            min_tracked: 8,
+            max_features: 150,
+            feature_spacing: 12.0,
+            image_width: 640.0,
+            image_height: 480.0,
+            feature_init: FeatureInitConfig::default(),
+            huber: 2.0,
+            ba_iterations: 10,
+            tracking_iterations: 10,
+            min_bootstrap_parallax: 2f64.to_radians(),
+            min_bootstrap_inlier_ratio: 0.6,
+            max_bootstrap_frames: 30,
+            ransac: RansacConfig {
+                threshold: 2.0,
+                ..RansacConfig::default()
+            },
+            seed: 0,
+        }
+    }
+}
+
+/// The front-end's view of a keyframe: the frame it was made from and every measurement in
+/// it, of map points or not (for loop closure).
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeyframeFrame {
+    /// The frame index given to [`MonoExplorer::process`].
+    pub frame: usize,
+    /// Every measurement of the frame: `(track, z)`.
+    pub measurements: Vec<(TrackId, Vector2<f64>)>,
+}
+
+/// The map an exploration builds: the SLAM graph, and the front-end's identities of its
+/// keyframes and points.
+#[derive(Clone, Debug, Default)]
+pub struct ExploredMap {
+    /// Keyframes, anchored inverse-depth points and their measurements.
+    pub graph: SlamGraph<2>,
+    /// Per keyframe (indexed by [`KeyframeId::index`]): its frame and measurements.
+    pub keyframes: Vec<KeyframeFrame>,
+    /// Per point (indexed by [`PointId::index`]): the track it was initialised from.
+    pub tracks: Vec<TrackId>,
+}
+
+impl ExploredMap {
+    /// The frame and measurements of keyframe `k`.
+    pub fn keyframe(&self, k: KeyframeId) -> &KeyframeFrame {
+        &self.keyframes[k.index()]
+    }
+
+    /// The track of point `p`.
+    pub fn track(&self, p: PointId) -> TrackId {
+        self.tracks[p.index()]
+    }
+
+    /// The keyframes in order of creation.
+    pub fn keyframe_ids(&self) -> impl Iterator<Item = KeyframeId> + '_ {
+        (0..self.keyframes.len()).map(KeyframeId::from_index)
+    }
+
+    /// The rigid pose of keyframe `k` (`(R, t/s)` of its similarity, see
+    /// [`crate::pose_graph::rigid_from_similarity`]).
+    pub fn rigid_pose(&self, k: KeyframeId) -> Se3 {
+        crate::pose_graph::rigid_from_similarity(
+            self.graph
+                .keyframe(k)
+                .expect("keyframes are never removed")
+                .camera_from_world(),
+        )
+    }
+
+    /// The rigid poses of every keyframe, in order.
+    pub fn rigid_poses(&self) -> Vec<Se3> {
+        self.keyframe_ids().map(|k| self.rigid_pose(k)).collect()
+    }
+
+    fn add_keyframe(
+        &mut self,
+        frame: usize,
+        pose: Se3,
+        measurements: &[(TrackId, Vector2<f64>)],
+    ) -> KeyframeId {
+        let k = self.graph.add_keyframe(Sim3::from_se3(&pose));
+        debug_assert_eq!(k.index(), self.keyframes.len());
+        self.keyframes.push(KeyframeFrame {
+            frame,
+            measurements: measurements.to_vec(),
+        });
+        k
+    }
+
+    /// A point of `track` at `point_world`, anchored in `anchor`, which measures it as `z`;
+    /// `None` if it is not in front of the anchor.
+    fn add_point(
+        &mut self,
+        track: TrackId,
+        anchor: KeyframeId,
+        point_world: &Vector3<f64>,
+        z: Vector2<f64>,
+    ) -> Option<PointId> {
+        let t_a = *self.graph.keyframe(anchor)?.camera_from_world();
+        let psi = point_to_inverse_depth(&t_a.act(point_world))?;
+        let p = self.graph.add_point(anchor, psi, z).ok()?;
+        debug_assert_eq!(p.index(), self.tracks.len());
+        self.tracks.push(track);
+        Some(p)
+    }
+}
+
+/// What [`MonoExplorer::process`] did with a frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameOutcome {
+    /// The frame's estimated pose, `None` while bootstrapping.
+    pub camera_from_world: Option<Se3>,
+    /// The keyframe if the frame became one.
+    pub keyframe: Option<KeyframeId>,
+    /// Map points tracked.
+    pub tracked: usize,
+    /// Features promoted to the map in this frame.
+    pub promoted: usize,
+    /// Filters started in this frame.
+    pub started: usize,
+    /// Filters running after this frame.
+    pub filters: usize,
+}
+
+/// Why exploration stopped.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ExplorationError {
+    /// No frame pair had enough parallax to bootstrap.
+    #[error("bootstrap failed after {frames} frames: {reason}")]
+    BootstrapFailed {
+        /// Frames tried.
+        frames: usize,
+        /// The last reason.
+        reason: String,
+    },
+    /// Too few map points were measured to track the pose.
+    #[error("tracking lost at frame {frame}: {tracked} map points measured")]
+    TrackingLost {
+        /// The frame.
+        frame: usize,
+        /// Map points measured.
+        tracked: usize,
+    },
+    /// Frames must be given in increasing order.
+    #[error("frame {frame} given after frame {last}")]
+    FrameOrder {
+        /// The frame.
+        frame: usize,
+        /// The previous one.
+        last: usize,
+    },
+    /// An optimisation failed.
+    #[error("optimisation failed: {0}")]
+    Optimisation(String),
+}
+
+enum State {
+    Empty,
+    Bootstrapping {
+        first: usize,
+        measurements: Vec<(TrackId, Vector2<f64>)>,
+        tried: usize,
+    },
+    Tracking {
+        last_frame: usize,
+        last_pose: Se3,
+        /// Per-frame motion `T_t·T_{t−1}⁻¹`.
+        velocity: Se3,
+    },
+}
+
+/// Monocular exploration over feature tracks (see the [module docs](self)).
+pub struct MonoExplorer {
+    camera: PinholeCamera,
+    config: ExplorationConfig,
+    map: ExploredMap,
+    /// Tracks with a map point that were measured in the last frame.
+    active: HashMap<TrackId, PointId>,
+    filters: FeatureFilters<PinholeCamera, 2>,
+    filter_of_track: HashMap<TrackId, FeatureId>,
+    keyframe_of_frame: HashMap<usize, KeyframeId>,
+    frame_poses: Vec<(usize, Se3)>,
+    state: State,
+}
+
+fn solver(iterations: usize) -> SolverOptions {
+    SolverOptions {
+        max_iterations: iterations,
+        threads: Some(1),
+        ..SolverOptions::default()
+    }
+}
+
+fn median(values: &mut [f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    Some(values[values.len() / 2])
+}
+
+impl MonoExplorer {
+    /// A new explorer for a pinhole camera.
+    pub fn new(camera: PinholeCamera, config: ExplorationConfig) -> Self {
+        let fi = FeatureInitConfig {
+            sigma: config.sigma,
+            ..config.feature_init
+        };
+        MonoExplorer {
+            camera,
+            filters: FeatureFilters::new(camera, fi),
+            config,
+            map: ExploredMap::default(),
+            active: HashMap::new(),
+            filter_of_track: HashMap::new(),
+            keyframe_of_frame: HashMap::new(),
+            frame_poses: Vec::new(),
+            state: State::Empty,
+        }
+    }
+
+    /// The map so far.
+    pub fn map(&self) -> &ExploredMap {
+        &self.map
+    }
+
+    /// `(frame, camera_from_world)` of every tracked frame (keyframe poses as last optimised).
+    pub fn frame_poses(&self) -> Vec<(usize, Se3)> {
+        self.frame_poses
+            .iter()
+            .map(|(f, t)| match self.keyframe_of_frame.get(f) {
+                Some(&k) => (*f, self.map.rigid_pose(k)),
+                None => (*f, *t),
+            })
+            .collect()
+    }
+
+    /// Number of running feature filters.
+    pub fn num_filters(&self) -> usize {
+        self.filters.len()
+    }
+
+    /// Consumes the explorer, returning its map.
+    pub fn into_map(self) -> ExploredMap {
+        self.map
+    }
+
+    /// Processes one frame's measurements `(track, z)` (pixels).
+    pub fn process(
+        &mut self,
+        frame: usize,
+        measurements: &[(TrackId, Vector2<f64>)],
+    ) -> Result<FrameOutcome, ExplorationError> {
+        let measurements: Vec<(TrackId, Vector2<f64>)> = measurements
+            .iter()
+            .filter(|(_, z)| z.iter().all(|v| v.is_finite()))
+            .copied()
+            .collect();
+        match std::mem::replace(&mut self.state, State::Empty) {
+            State::Empty => {
+                self.state = State::Bootstrapping {
+                    first: frame,
+                    measurements,
+                    tried: 0,
+                };
+                Ok(FrameOutcome {
+                    camera_from_world: None,
+                    keyframe: None,
+                    tracked: 0,
+                    promoted: 0,
+                    started: 0,
+                    filters: 0,
+                })
+            }
+            State::Bootstrapping {
+                first,
+                measurements: first_measurements,
+                tried,
+            } => {
+                if frame <= first {
+                    self.state = State::Bootstrapping {
+                        first,
+                        measurements: first_measurements,
+                        tried,
+                    };
+                    return Err(ExplorationError::FrameOrder { frame, last: first });
+                }
+                match self.bootstrap(first, &first_measurements, frame, &measurements) {
+                    Ok(outcome) => Ok(outcome),
+                    Err(reason) => {
+                        if tried + 1 >= self.config.max_bootstrap_frames {
+                            return Err(ExplorationError::BootstrapFailed {
+                                frames: tried + 1,
+                                reason,
+                            });
+                        }
+                        self.state = State::Bootstrapping {
+                            first,
+                            measurements: first_measurements,
+                            tried: tried + 1,
+                        };
+                        Ok(FrameOutcome {
+                            camera_from_world: None,
+                            keyframe: None,
+                            tracked: 0,
+                            promoted: 0,
+                            started: 0,
+                            filters: 0,
+                        })
+                    }
+                }
+            }
+            State::Tracking {
+                last_frame,
+                last_pose,
+                velocity,
+            } => {
+                if frame <= last_frame {
+                    self.state = State::Tracking {
+                        last_frame,
+                        last_pose,
+                        velocity,
+                    };
+                    return Err(ExplorationError::FrameOrder {
+                        frame,
+                        last: last_frame,
+                    });
+                }
+                self.track(frame, &measurements, last_frame, last_pose, velocity)
+            }
+        }
+    }
+
+    /// Two-view bootstrap between the first frame and `frame`; `Err(reason)` to keep waiting.
+    fn bootstrap(
+        &mut self,
+        first: usize,
+        first_measurements: &[(TrackId, Vector2<f64>)],
+        frame: usize,
+        measurements: &[(TrackId, Vector2<f64>)],
+    ) -> Result<FrameOutcome, String> {
+        let in_first: HashMap<TrackId, Vector2<f64>> = first_measurements.iter().copied().collect();
+        let mut tracks = Vec::new();
+        let (mut m_a, mut m_b) = (Vec::new(), Vec::new());
+        let (mut z_a, mut z_b) = (Vec::new(), Vec::new());
+        for (track, z) in measurements {
+            if let Some(za) = in_first.get(track) {
+                tracks.push(*track);
+                z_a.push(*za);
+                z_b.push(*z);
+                m_a.push(self.camera.normalised_from_pixel(za));
+                m_b.push(self.camera.normalised_from_pixel(z));
+            }
+        }
+        let ransac = RansacConfig {
+            seed: self.config.ransac.seed ^ self.config.seed,
+            ..self.config.ransac
+        };
+        let rel =
+            relative_pose_ransac(&m_a, &m_b, self.camera.fx, &ransac).map_err(|e| e.to_string())?;
+        if (rel.inliers.len() as f64) < self.config.min_bootstrap_inlier_ratio * m_a.len() as f64 {
+            return Err(format!(
+                "only {} of {} correspondences are inliers",
+                rel.inliers.len(),
+                m_a.len()
+            ));
+        }
+        if rel.median_parallax < self.config.min_bootstrap_parallax {
+            return Err(format!(
+                "median parallax {:.2}° below {:.2}°",
+                rel.median_parallax.to_degrees(),
+                self.config.min_bootstrap_parallax.to_degrees()
+            ));
+        }
+        // Triangulate the inliers with a usable parallax (a quarter of the required median).
+        let mut pts = Vec::new();
+        for &i in &rel.inliers {
+            if let Some(t) = triangulate(&rel.b_from_a, &m_a[i], &m_b[i])
+                && t.depth_a > 0.0
+                && t.depth_b > 0.0
+                && t.parallax >= 0.25 * self.config.min_bootstrap_parallax
+            {
+                pts.push((i, t.point_a));
+            }
+        }
+        if pts.len() < self.config.min_tracked.max(8) {
+            return Err(format!("only {} points triangulated", pts.len()));
+        }
+        // Two-view BA: first pose fixed, scale left to the damping (thesis §4.5.3).
+        let poses = [Se3::identity(), rel.b_from_a];
+        let points: Vec<Vector3<f64>> = pts.iter().map(|(_, p)| *p).collect();
+        let mut obs = Vec::new();
+        for (k, (i, _)) in pts.iter().enumerate() {
+            obs.push(Observation {
+                pose: 0,
+                point: k,
+                measurement: z_a[*i],
+            });
+            obs.push(Observation {
+                pose: 1,
+                point: k,
+                measurement: z_b[*i],
+            });
+        }
+        let mut ba = BundleAdjustment::new(
+            &self.camera,
+            &poses,
+            &points,
+            &obs,
+            self.config.sigma,
+            Some(RobustKernel::Huber(self.config.huber)),
+            BaMode::Full,
+            &Gauge::FixPoses(vec![0]),
+        )
+        .map_err(|e| e.to_string())?;
+        ba.problem
+            .optimise(&solver(20))
+            .map_err(|e| e.to_string())?;
+        let poses = ba.camera_from_world();
+        let scale = poses[1].translation().norm();
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err("degenerate baseline after bundle adjustment".into());
+        }
+        let second = Se3::new(*poses[1].rotation(), poses[1].translation() / scale);
+        let points: Vec<Vector3<f64>> = ba.points_world().iter().map(|p| p / scale).collect();
+        // Keyframes 0 and 1, map points anchored in keyframe 0.
+        let k0 = self
+            .map
+            .add_keyframe(first, Se3::identity(), first_measurements);
+        let k1 = self.map.add_keyframe(frame, second, measurements);
+        self.keyframe_of_frame.insert(first, k0);
+        self.keyframe_of_frame.insert(frame, k1);
+        for ((i, _), p) in pts.iter().zip(points) {
+            let Some(point) = self.map.add_point(tracks[*i], k0, &p, z_a[*i]) else {
+                continue;
+            };
+            self.add_observation(k1, point, z_b[*i]);
+            self.active.insert(tracks[*i], point);
+        }
+        self.frame_poses.push((first, Se3::identity()));
+        self.frame_poses.push((frame, second));
+        let steps = (frame - first) as f64;
+        let velocity = Se3::exp(&(second.log() / steps));
+        let started = self.start_features(k1, frame, measurements);
+        self.state = State::Tracking {
+            last_frame: frame,
+            last_pose: second,
+            velocity,
+        };
+        Ok(FrameOutcome {
+            camera_from_world: Some(second),
+            keyframe: Some(k1),
+            tracked: self.active.len(),
+            promoted: 0,
+            started,
+            filters: self.filters.len(),
+        })
+    }
+
+    fn add_observation(&mut self, keyframe: KeyframeId, point: PointId, z: Vector2<f64>) {
+        self.map
+            .graph
+            .add_observation(keyframe, point, z)
+            .expect("the explorer's keyframes and points exist");
+    }
+
+    fn track(
+        &mut self,
+        frame: usize,
+        measurements: &[(TrackId, Vector2<f64>)],
+        last_frame: usize,
+        last_pose: Se3,
+        velocity: Se3,
+    ) -> Result<FrameOutcome, ExplorationError> {
+        // 1. Predict with constant velocity, refine by motion-only BA.
+        let steps = (frame - last_frame) as f64;
+        let mut predicted = last_pose;
+        if steps > 0.0 {
+            predicted = Se3::exp(&(velocity.log() * steps)).compose(&last_pose);
+        }
+        let tracked: Vec<(PointId, Vector2<f64>)> = measurements
+            .iter()
+            .filter_map(|(t, z)| self.active.get(t).map(|&p| (p, *z)))
+            .collect();
+        if tracked.len() < self.config.min_tracked {
+            return Err(ExplorationError::TrackingLost {
+                frame,
+                tracked: tracked.len(),
+            });
+        }
+        let pose = self.motion_only(predicted, &tracked)?;
+        let new_velocity = Se3::exp(&(pose.compose(&last_pose.inverse()).log() / steps));
+        // 2. Keyframe decision by distance relative to the median scene depth.
+        let mut depths: Vec<f64> = tracked
+            .iter()
+            .filter_map(|(p, _)| self.map.graph.point_world(*p).ok())
+            .map(|y| pose.act(&y).z)
+            .filter(|d| *d > 0.0)
+            .collect();
+        let median_depth = median(&mut depths).unwrap_or(1.0);
+        let last_kf = KeyframeId::from_index(self.map.keyframes.len() - 1);
+        let distance = (centre(&pose) - centre(&self.map.rigid_pose(last_kf))).norm();
+        let is_keyframe = distance > self.config.keyframe_distance * median_depth
+            || tracked.len() < self.config.min_tracked_for_keyframe;
+        let keyframe = is_keyframe.then(|| {
+            let k = self.map.add_keyframe(frame, pose, measurements);
+            self.keyframe_of_frame.insert(frame, k);
+            for (p, z) in &tracked {
+                self.add_observation(k, *p, *z);
+            }
+            k
+        });
+        // 3. Update the filters with this frame; promote converged features.
+        let filter_measurements: Vec<(FeatureId, Vector2<f64>)> = measurements
+            .iter()
+            .filter_map(|(t, z)| self.filter_of_track.get(t).map(|id| (*id, *z)))
+            .collect();
+        self.filters.update(frame, &pose, &filter_measurements);
+        let promoted = self.promote();
+        // 4. Drop tracks not measured in this frame.
+        let seen: HashSet<TrackId> = measurements.iter().map(|(t, _)| *t).collect();
+        self.active.retain(|t, _| seen.contains(t));
+        let before = self.filter_of_track.len();
+        self.filter_of_track.retain(|t, _| seen.contains(t));
+        if self.filter_of_track.len() != before {
+            let keep: HashSet<FeatureId> = self.filter_of_track.values().copied().collect();
+            self.filters.retain(|id, _| keep.contains(&id));
+        }
+        // 5. In a keyframe: new features, sliding-window BA.
+        let mut started = 0;
+        let mut pose = pose;
+        if let Some(k) = keyframe {
+            started = self.start_features(k, frame, measurements);
+            self.window_ba()?;
+            pose = self.map.rigid_pose(k);
+        }
+        self.frame_poses.push((frame, pose));
+        self.state = State::Tracking {
+            last_frame: frame,
+            last_pose: pose,
+            velocity: new_velocity,
+        };
+        Ok(FrameOutcome {
+            camera_from_world: Some(pose),
+            keyframe,
+            tracked: tracked.len(),
+            promoted,
+            started,
+            filters: self.filters.len(),
+        })
+    }
+
+    fn motion_only(
+        &self,
+        predicted: Se3,
+        tracked: &[(PointId, Vector2<f64>)],
+    ) -> Result<Se3, ExplorationError> {
+        let (points, measurements): (Vec<Vector3<f64>>, Vec<Vector2<f64>>) = tracked
+            .iter()
+            .map(|(p, z)| {
+                let y = self
+                    .map
+                    .graph
+                    .point_world(*p)
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+                Ok((y, *z))
+            })
+            .collect::<Result<Vec<_>, ExplorationError>>()?
+            .into_iter()
+            .unzip();
+        let options = MotionOnlyOptions {
+            sigma: self.config.sigma,
+            kernel: Some(RobustKernel::Huber(self.config.huber)),
+            iterations: self.config.tracking_iterations,
+            min_matches: self.config.min_tracked,
+        };
+        motion_only_ba(&self.camera, &predicted, &points, &measurements, &options)
+            .map(|fit| fit.camera_from_world)
+            .map_err(|e| ExplorationError::Optimisation(e.to_string()))
+    }
+
+    /// Promotes converged filters to map points with their keyframe measurements.
+    fn promote(&mut self) -> usize {
+        let converged = self.filters.take_converged();
+        let n = converged.len();
+        let track_of: HashMap<FeatureId, TrackId> =
+            self.filter_of_track.iter().map(|(t, f)| (*f, *t)).collect();
+        for (id, f) in converged {
+            let Some(&track) = track_of.get(&id) else {
+                continue;
+            };
+            self.filter_of_track.remove(&track);
+            let anchor = self.keyframe_of_frame[&f.anchor_frame];
+            // The filter's anchor frame is a keyframe (filters start in keyframes), which
+            // measures the feature first.
+            let Some(&(_, z_anchor)) = f.observations.iter().find(|(fr, _)| *fr == f.anchor_frame)
+            else {
+                continue;
+            };
+            let Some(point) = self
+                .map
+                .add_point(track, anchor, &f.point_world(), z_anchor)
+            else {
+                continue;
+            };
+            for (frame, z) in &f.observations {
+                if let Some(&k) = self.keyframe_of_frame.get(frame)
+                    && k != anchor
+                {
+                    self.add_observation(k, point, *z);
+                }
+            }
+            self.active.insert(track, point);
+        }
+        n
+    }
+
+    /// Starts filters in keyframe `k` where the feature density is low (thesis §3.4.3).
+    fn start_features(
+        &mut self,
+        k: KeyframeId,
+        frame: usize,
+        measurements: &[(TrackId, Vector2<f64>)],
+    ) -> usize {
+        let (w, h) = (
+            self.config.image_width as f32,
+            self.config.image_height as f32,
+        );
+        let min_cell = (self.config.feature_spacing as f32 * 0.5).max(1.0);
+        let mut existing = QuadTree::new(w, h, min_cell);
+        let mut count = 0;
+        let mut candidates = Vec::new();
+        for (i, (t, z)) in measurements.iter().enumerate() {
+            if self.active.contains_key(t) || self.filter_of_track.contains_key(t) {
+                existing.insert(QuadPoint {
+                    u: z.x as f32,
+                    v: z.y as f32,
+                    score: 0.0,
+                    index: i,
+                });
+                count += 1;
+            } else {
+                candidates.push(QuadPoint {
+                    u: z.x as f32,
+                    v: z.y as f32,
+                    score: 0.0,
+                    index: i,
+                });
+            }
+        }
+        if count >= self.config.max_features || candidates.is_empty() {
+            return 0;
+        }
+        let anchor = self.map.rigid_pose(k);
+        let graph = &self.map.graph;
+        let mut inverse_depths: Vec<f64> = graph
+            .keyframe(k)
+            .expect("a keyframe of the map")
+            .observations()
+            .keys()
+            .filter_map(|&p| graph.point_world(p).ok())
+            .map(|y| 1.0 / anchor.act(&y).z)
+            .filter(|q| q.is_finite() && *q > 0.0)
+            .collect();
+        let q0 = median(&mut inverse_depths).unwrap_or(1.0);
+        let tree = QuadTree::from_points(w, h, min_cell, &candidates);
+        let seed = self.config.seed ^ (frame as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let r = self.config.feature_spacing as f32;
+        let mut started = 0;
+        for c in tree.traverse(seed) {
+            if count >= self.config.max_features {
+                break;
+            }
+            if existing.count_in_box(c.u - r, c.v - r, c.u + r, c.v + r) > 0 {
+                continue;
+            }
+            let (track, z) = measurements[c.index];
+            let Ok(ray) = self.camera.unproject(&z) else {
+                continue;
+            };
+            if let Some(id) = self
+                .filters
+                .add(frame, anchor, z, Vector3::new(ray.x, ray.y, q0))
+            {
+                self.filter_of_track.insert(track, id);
+                existing.insert(c);
+                count += 1;
+                started += 1;
+            }
+        }
+        started
+    }
+
+    /// Sliding-window BA over the last `window` keyframes, the first two fixed (§3.3.3), on
+    /// Euclidean points (points measured once in the window held fixed); the points are
+    /// written back anchored in their (possibly moved) anchor keyframes.
+    fn window_ba(&mut self) -> Result<(), ExplorationError> {
+        let graph = &self.map.graph;
+        let n = self.map.keyframes.len();
+        let start = n.saturating_sub(self.config.window.max(3));
+        let window: Vec<KeyframeId> = (start..n).map(KeyframeId::from_index).collect();
+        let poses: Vec<Se3> = window.iter().map(|&k| self.map.rigid_pose(k)).collect();
+        let mut count: BTreeMap<PointId, usize> = BTreeMap::new();
+        for &k in &window {
+            for &p in graph.keyframe(k).expect("in the map").observations().keys() {
+                *count.entry(p).or_default() += 1;
+            }
+        }
+        let index: BTreeMap<PointId, usize> =
+            count.keys().enumerate().map(|(i, &p)| (p, i)).collect();
+        let points: Vec<Vector3<f64>> = count
+            .keys()
+            .map(|&p| graph.point_world(p))
+            .collect::<Result<_, _>>()
+            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+        let observations: Vec<Observation<2>> = window
+            .iter()
+            .enumerate()
+            .flat_map(|(wi, &k)| {
+                let obs = graph.keyframe(k).expect("in the map").observations();
+                let index = &index;
+                obs.iter().map(move |(p, z)| Observation {
+                    pose: wi,
+                    point: index[p],
+                    measurement: *z,
+                })
+            })
+            .collect();
+        let mut ba = BundleAdjustment::new(
+            &self.camera,
+            &poses,
+            &points,
+            &observations,
+            self.config.sigma,
+            Some(RobustKernel::Huber(self.config.huber)),
+            BaMode::Full,
+            &Gauge::FixPoses(vec![0, 1]),
+        )
+        .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+        for (v, &c) in ba.points.iter().zip(count.values()) {
+            if c < 2 {
+                ba.problem.set_fixed(v.key(), true);
+            }
+        }
+        ba.problem
+            .optimise(&solver(self.config.ba_iterations))
+            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+        let (poses, points) = (ba.camera_from_world(), ba.points_world());
+        for (&k, t) in window.iter().zip(&poses) {
+            self.map
+                .graph
+                .set_pose(k, Sim3::from_se3(t))
+                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            self.filters
+                .set_anchor_pose(self.map.keyframes[k.index()].frame, *t);
+        }
+        for (&p, y) in count.keys().zip(&points) {
+            let graph = &mut self.map.graph;
+            let anchor = graph.point(p).expect("in the map").anchor();
+            let x = graph.pose(anchor).expect("in the map").act(y);
+            // A point the window pushed behind its anchor keeps its previous position.
+            if let Some(psi) = point_to_inverse_depth(&x) {
+                graph
+                    .set_inverse_depth(p, psi)
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The camera centre `−Rᵀt` of a `camera_from_world` pose.
+fn centre(camera_from_world: &Se3) -> Vector3<f64> {
+    *camera_from_world.inverse().translation()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A camera sliding sideways (x) past a box of points 3–6 m ahead, `n` frames 4 cm apart,
+    /// measured with Gaussian pixel noise `sigma`: `(truth, measurements per frame)`.
+    #[allow(clippy::type_complexity)]
+    fn sideways(seed: u64, n: usize, sigma: f64) -> (Vec<Se3>, Vec<Vec<(TrackId, Vector2<f64>)>>) {
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let points: Vec<Vector3<f64>> = (0..400)
+            .map(|_| {
+                Vector3::new(
+                    rng.random_range(-4.0..(4.0 + 0.04 * n as f64)),
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(3.0..6.0),
+                )
+            })
+            .collect();
+        let noise = Normal::new(0.0, sigma).unwrap();
+        let truth: Vec<Se3> = (0..n)
+            .map(|k| Se3::from_translation(Vector3::new(-0.04 * k as f64, 0.0, 0.0)))
+            .collect();
+        let frames = truth
+            .iter()
+            .map(|t| {
+                points
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(j, p)| {
+                        let z = CameraModel::project(&camera, &t.act(p)).ok()?;
+                        (z.x >= 0.0 && z.x < 640.0 && z.y >= 0.0 && z.y < 480.0).then(|| {
+                            (
+                                j as TrackId,
+                                z + Vector2::new(noise.sample(&mut rng), noise.sample(&mut rng)),
+                            )
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        (truth, frames)
+    }
+
+    fn explore(frames: &[Vec<(TrackId, Vector2<f64>)>], sigma: f64) -> MonoExplorer {
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        let mut explorer = MonoExplorer::new(
+            camera,
+            ExplorationConfig {
+                sigma,
+                ..ExplorationConfig::default()
+            },
+        );
+        for (f, m) in frames.iter().enumerate() {
+            explorer.process(f, m).unwrap();
+        }
+        explorer
+    }
+
+    /// Bootstrap, tracking, keyframes, feature initialisation and window BA on a sideways
+    /// motion: the trajectory is recovered up to the monocular scale, features are promoted to
+    /// the map, and the same input gives the same output.
+    #[test]
+    fn sideways_exploration_recovers_the_trajectory_up_to_scale() {
+        let (truth, frames) = sideways(1, 120, 0.5);
+        let explorer = explore(&frames, 0.5);
+        let poses = explorer.frame_poses();
+        assert!(poses.len() > 100, "{} frames tracked", poses.len());
+        assert!(explorer.map().keyframes.len() >= 10);
+        // Map points beyond the bootstrap's: promoted by the filters.
+        let promoted = explorer
+            .map()
+            .graph
+            .points()
+            .filter(|(_, p)| p.anchor() != KeyframeId(0))
+            .count();
+        assert!(promoted > 50, "{promoted} promoted features");
+        // Camera centres relative to the first, best scale: small error.
+        let first = poses[0].0;
+        let c_true: Vec<Vector3<f64>> = poses
+            .iter()
+            .map(|(f, _)| centre(&truth[*f]) - centre(&truth[first]))
+            .collect();
+        let c_est: Vec<Vector3<f64>> = poses
+            .iter()
+            .map(|(_, t)| centre(t) - centre(&poses[0].1))
+            .collect();
+        let s = c_true
+            .iter()
+            .zip(&c_est)
+            .map(|(a, b)| a.dot(b))
+            .sum::<f64>()
+            / c_est.iter().map(|b| b.norm_squared()).sum::<f64>();
+        let rmse = (c_true
+            .iter()
+            .zip(&c_est)
+            .map(|(a, b)| (a - s * b).norm_squared())
+            .sum::<f64>()
+            / c_true.len() as f64)
+            .sqrt();
+        let length = (c_true.last().unwrap()).norm();
+        assert!(rmse < 0.01 * length, "rmse {rmse} over {length} m");
+        // Deterministic.
+        let again = explore(&frames, 0.5);
+        assert_eq!(again.frame_poses(), poses);
+        let points = |e: &MonoExplorer| -> Vec<_> {
+            e.map()
+                .graph
+                .points()
+                .map(|(p, pt)| (p, pt.anchor(), *pt.inverse_depth()))
+                .collect()
+        };
+        assert_eq!(points(&again), points(&explorer));
+        explorer.map().graph.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn frames_out_of_order_and_lost_tracking_are_errors() {
+        let (_, frames) = sideways(2, 30, 0.5);
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        let mut explorer = MonoExplorer::new(camera, ExplorationConfig::default());
+        for (f, m) in frames.iter().enumerate() {
+            explorer.process(f, m).unwrap();
+        }
+        assert!(matches!(
+            explorer.process(3, &frames[3]),
+            Err(ExplorationError::FrameOrder { .. })
+        ));
+        assert!(matches!(
+            explorer.process(100, &[]),
+            Err(ExplorationError::TrackingLost { .. })
+        ));
+        // No parallax at all: the bootstrap gives up with a reason.
+        let mut still = MonoExplorer::new(
+            camera,
+            ExplorationConfig {
+                max_bootstrap_frames: 5,
+                ..ExplorationConfig::default()
+            },
+        );
+        let mut result = Ok(());
+        for f in 0..10 {
+            if let Err(e) = still.process(f, &frames[0]) {
+                result = Err(e);
+                break;
+            }
+        }
+        assert!(matches!(
+            result,
+            Err(ExplorationError::BootstrapFailed { .. })
+        ));
+    }
+}

@@ -1,0 +1,171 @@
+//! The synchronous keyframe pipeline: every stage in order, in one thread.
+
+use super::mapper::{AppearanceMatch, Mapper, MappingError};
+use crate::dwo::{DoubleWindowOptimiser, DwoStats};
+use crate::factors::InverseDepthCamera;
+use crate::loop_closure::MetricLoopClosure;
+use crate::map::{KeyframeId, PointId, SlamGraph};
+use crate::tracking::{TrackId, tracking_candidates};
+use lie::Sim3;
+use nalgebra::SVector;
+use std::collections::BTreeSet;
+use std::time::{Duration, Instant};
+
+/// The front-end's side of the keyframe pipeline: data association for the new keyframe. The
+/// live system answers from images (guided patch search, place recognition by bag of words),
+/// the simulator from its known world. Called by [`KeyframePipeline::process_keyframe`] in
+/// the order of the methods below.
+pub trait FrontEnd<const N: usize> {
+    /// The new keyframe's measurements of `candidates` (the points visible from `N1` of the
+    /// reference keyframe, thesis §6.2.5; empty for the first keyframe).
+    fn match_candidates(
+        &mut self,
+        graph: &SlamGraph<N>,
+        candidates: &BTreeSet<PointId>,
+    ) -> Vec<(PointId, SVector<f64, N>)>;
+
+    /// The new keyframe's pose when the front-end knows it (the first keyframe; a monocular
+    /// bootstrap), instead of tracking it from `matches`.
+    fn given_pose(
+        &mut self,
+        graph: &SlamGraph<N>,
+        matches: &[(PointId, SVector<f64, N>)],
+    ) -> Option<Sim3>;
+
+    /// An old keyframe that `keyframe` revisits, found by place recognition (thesis §6.4.2),
+    /// with its correspondences.
+    fn recognise_place(
+        &mut self,
+        graph: &SlamGraph<N>,
+        keyframe: KeyframeId,
+    ) -> Option<AppearanceMatch<N>>;
+
+    /// Guided search (thesis §6.4.1): the measurements in `keyframe` of the `predictions`
+    /// (points and their predicted measurements), in the order they are to be used.
+    fn guided_search(
+        &mut self,
+        graph: &SlamGraph<N>,
+        keyframe: KeyframeId,
+        predictions: &[(PointId, SVector<f64, N>)],
+    ) -> Vec<(PointId, SVector<f64, N>)>;
+
+    /// Every measurement of `keyframe` with its track and whether it is now associated with a
+    /// point `keyframe` observes (the others may become new points).
+    fn measurements(
+        &mut self,
+        graph: &SlamGraph<N>,
+        keyframe: KeyframeId,
+    ) -> Vec<(TrackId, SVector<f64, N>, bool)>;
+
+    /// The points made for tracks by [`Mapper::add_points`], in creation order.
+    fn points_created(&mut self, created: &[(TrackId, PointId)]);
+}
+
+/// What the pipeline did with one keyframe.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeyframeReport {
+    /// The new keyframe.
+    pub keyframe: KeyframeId,
+    /// Map points it was tracked against.
+    pub tracked: usize,
+    /// The keyframe an appearance loop closure joined it to.
+    pub appearance_loop: Option<KeyframeId>,
+    /// The metric loop closures.
+    pub metric_loops: Vec<MetricLoopClosure>,
+    /// Points created.
+    pub new_points: usize,
+    /// Time of the stages before the optimisation (with the front-end's association).
+    pub time_frontend: Duration,
+    /// Time of each stage (with the front-end's association for it), in order.
+    pub stage_times: Vec<(&'static str, Duration)>,
+    /// The optimisation (none for the first keyframe).
+    pub optimisation: Option<DwoStats>,
+}
+
+/// The keyframe pipeline in its synchronous mode: the stages of [`Mapper`] and double window
+/// optimisation, in order, in the calling thread (deterministic: the same input gives the
+/// same output).
+#[derive(Clone, Debug)]
+pub struct KeyframePipeline<C, const N: usize> {
+    /// The stages.
+    pub mapper: Mapper<C, N>,
+    /// The optimiser.
+    pub optimiser: DoubleWindowOptimiser,
+}
+
+impl<C: InverseDepthCamera<N>, const N: usize> KeyframePipeline<C, N> {
+    /// A pipeline of `mapper`'s stages and `optimiser`.
+    pub fn new(mapper: Mapper<C, N>, optimiser: DoubleWindowOptimiser) -> Self {
+        KeyframePipeline { mapper, optimiser }
+    }
+
+    /// One keyframe through every stage: track, insert, appearance loop, metric loop, new
+    /// points ([`Mapper::map_keyframe`]), and (from the second keyframe on) double window
+    /// optimisation.
+    pub fn process_keyframe(
+        &mut self,
+        graph: &mut SlamGraph<N>,
+        front_end: &mut impl FrontEnd<N>,
+    ) -> Result<KeyframeReport, MappingError> {
+        let mut report = self.mapper.map_keyframe(graph, front_end)?;
+        // A window needs two keyframes: alone, the first one's points have nothing to be
+        // adjusted against.
+        if graph.num_keyframes() >= 2 {
+            report.optimisation = Some(self.optimiser.optimise(graph, self.mapper.camera())?);
+        }
+        Ok(report)
+    }
+}
+
+impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
+    /// Every stage of the keyframe pipeline but the optimisation, in order: track, insert,
+    /// appearance loop, metric loop, new points ([`KeyframePipeline::process_keyframe`] adds
+    /// the optimisation; the live system's optimiser runs in its own thread).
+    pub fn map_keyframe(
+        &mut self,
+        graph: &mut SlamGraph<N>,
+        front_end: &mut impl FrontEnd<N>,
+    ) -> Result<KeyframeReport, MappingError> {
+        let start = Instant::now();
+        let mut stage_times = Vec::with_capacity(5);
+        let mut lap = Instant::now();
+        let mut stage = |name: &'static str, times: &mut Vec<(&'static str, Duration)>| {
+            times.push((name, lap.elapsed()));
+            lap = Instant::now();
+        };
+        let candidates = graph
+            .reference()
+            .map(|r| tracking_candidates(graph, r))
+            .unwrap_or_default();
+        let matches = front_end.match_candidates(graph, &candidates);
+        let given = front_end.given_pose(graph, &matches);
+        let tracked = matches.len();
+        let frame = self.track(graph, matches, given)?;
+        stage("keyframe: track", &mut stage_times);
+        let (keyframe, _) = self.insert_keyframe(graph, frame)?;
+        stage("keyframe: insert and register", &mut stage_times);
+        let appearance_loop = match front_end.recognise_place(graph, keyframe) {
+            Some(place) => self.close_appearance_loop(graph, keyframe, &place)?,
+            None => None,
+        };
+        stage("keyframe: appearance loop", &mut stage_times);
+        let predictions = self.loop_predictions(graph, keyframe)?;
+        let found = front_end.guided_search(graph, keyframe, &predictions);
+        let metric_loops = self.close_metric_loops(graph, keyframe, &found)?;
+        stage("keyframe: metric loop", &mut stage_times);
+        let measurements = front_end.measurements(graph, keyframe);
+        let created = self.add_points(graph, keyframe, &measurements)?;
+        front_end.points_created(&created);
+        stage("keyframe: new points", &mut stage_times);
+        Ok(KeyframeReport {
+            keyframe,
+            tracked,
+            appearance_loop,
+            metric_loops,
+            new_points: created.len(),
+            time_frontend: start.elapsed(),
+            stage_times,
+            optimisation: None,
+        })
+    }
+}

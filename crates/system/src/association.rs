@@ -1,0 +1,216 @@
+//! The live front-end's side of the keyframe pipeline (`slam::mapping::FrontEnd`): data
+//! association from images for a new keyframe — its tracked matches and pose, the guided search
+//! of metric loop closure (thesis §6.4.1: a 10-pixel radius), the new points where the quadtree
+//! finds room (§3.4.3, §6.3), and the place recogniser's loop, when there is one.
+
+use crate::frame::{FrameData, SensorFrontEnd};
+use crate::keyframes::{KeyframeImages, KeyframeStore};
+use crate::search::{SearchPoint, SearchScratch, search, view_angle};
+use lie::Sim3;
+use nalgebra::{SVector, Vector2, Vector3};
+use slam::map::{KeyframeId, PointId, SlamGraph};
+use slam::mapping::{AppearanceMatch, FrontEnd};
+use slam::tracking::TrackId;
+use std::collections::BTreeSet;
+use vision::quadtree::{QuadPoint, QuadTree};
+
+/// One new keyframe's association.
+pub struct KeyframeAssociation<'a> {
+    /// The keyframe's frame.
+    pub frame: &'a FrameData,
+    /// Its images (already in the store under its id once inserted: templates for the guided
+    /// search come from the anchor keyframes).
+    pub store: &'a KeyframeStore,
+    /// The sensor.
+    pub sensor: &'a SensorFrontEnd,
+    /// The tracked pose.
+    pub camera_from_world: Sim3,
+    /// The tracked inlier matches.
+    pub matches: Vec<(PointId, Vector3<f64>)>,
+    /// A loop the place recogniser found for this keyframe.
+    pub place: Option<AppearanceMatch<3>>,
+    /// Guided-search radius of metric loop closure (pixels).
+    pub loop_radius: f64,
+    /// The visibility test's largest viewing-angle change (radians).
+    pub max_view_angle: f64,
+    /// Correlation a patch match needs.
+    pub min_ncc: f32,
+    /// New points per keyframe at most.
+    pub max_new_points: usize,
+    /// A new point needs this much room from the keyframe's observations (pixels).
+    pub spacing: f64,
+    /// Smallest disparity for a new point (pixels).
+    pub min_disparity: f64,
+    /// The next free track id (new points each get one).
+    pub next_track: &'a mut TrackId,
+    /// Points created.
+    pub created: Vec<(TrackId, PointId)>,
+    scratch: SearchScratch,
+}
+
+impl<'a> KeyframeAssociation<'a> {
+    /// The association of a keyframe made from `frame`, tracked at `camera_from_world` with
+    /// `matches`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        frame: &'a FrameData,
+        store: &'a KeyframeStore,
+        sensor: &'a SensorFrontEnd,
+        camera_from_world: Sim3,
+        matches: Vec<(PointId, Vector3<f64>)>,
+        config: &crate::config::SystemConfig,
+        min_disparity: f64,
+        next_track: &'a mut TrackId,
+    ) -> Self {
+        KeyframeAssociation {
+            frame,
+            store,
+            sensor,
+            camera_from_world,
+            matches,
+            place: None,
+            loop_radius: config.mapping.loop_search_radius,
+            max_view_angle: config.tracker.max_view_angle_deg.to_radians(),
+            min_ncc: config.tracker.min_ncc,
+            max_new_points: config.keyframes.max_new_points,
+            spacing: config.keyframes.new_point_spacing,
+            min_disparity,
+            next_track,
+            created: Vec::new(),
+            scratch: SearchScratch::default(),
+        }
+    }
+
+    /// The images of the keyframe being made (to insert into the store).
+    pub fn images(&self) -> KeyframeImages {
+        KeyframeImages::from_frame(self.frame)
+    }
+
+    fn stereo_measurement(&self, u: Vector2<f64>) -> Option<Vector3<f64>> {
+        let d = self.frame.depth_at(u.x, u.y)?;
+        let z = self.sensor.measurement(u.x, u.y, d);
+        (z.x - z.z >= self.min_disparity).then_some(z)
+    }
+}
+
+impl FrontEnd<3> for KeyframeAssociation<'_> {
+    fn match_candidates(
+        &mut self,
+        _: &SlamGraph<3>,
+        candidates: &BTreeSet<PointId>,
+    ) -> Vec<(PointId, SVector<f64, 3>)> {
+        self.matches
+            .iter()
+            .filter(|(p, _)| candidates.contains(p))
+            .copied()
+            .collect()
+    }
+
+    fn given_pose(&mut self, _: &SlamGraph<3>, _: &[(PointId, SVector<f64, 3>)]) -> Option<Sim3> {
+        Some(self.camera_from_world)
+    }
+
+    fn recognise_place(&mut self, _: &SlamGraph<3>, _: KeyframeId) -> Option<AppearanceMatch<3>> {
+        self.place.take()
+    }
+
+    fn guided_search(
+        &mut self,
+        graph: &SlamGraph<3>,
+        keyframe: KeyframeId,
+        predictions: &[(PointId, SVector<f64, 3>)],
+    ) -> Vec<(PointId, SVector<f64, 3>)> {
+        let Ok(pose) = graph.pose(keyframe) else {
+            return Vec::new();
+        };
+        let pose = pose.rigid_part();
+        let camera = *self.sensor.pinhole();
+        // Every candidate of N2 \ N1 (thesis §6.4.1) that passes PTAM's visibility test.
+        let (w, h) = (self.frame.gray().width(), self.frame.gray().height());
+        let visible = predictions.iter().filter_map(|(p, z)| {
+            let point = SearchPoint::from_graph(graph, *p)?;
+            let inside = z.x >= 6.0 && z.y >= 6.0 && z.x < w as f64 - 6.0 && z.y < h as f64 - 6.0;
+            (inside && view_angle(&pose, &point) < self.max_view_angle).then_some(point)
+        });
+        let mut found = Vec::new();
+        for point in visible {
+            let p = &point.point;
+            let Some(anchor) = self.store.get(point.anchor) else {
+                continue;
+            };
+            let Some(u) = search(
+                &camera,
+                &pose,
+                &point,
+                anchor,
+                self.frame.gray(),
+                &self.frame.corners,
+                self.loop_radius,
+                self.min_ncc,
+                &mut self.scratch,
+            ) else {
+                continue;
+            };
+            if let Some(z) = self.stereo_measurement(u) {
+                found.push((*p, z));
+            }
+        }
+        found
+    }
+
+    fn measurements(
+        &mut self,
+        graph: &SlamGraph<3>,
+        keyframe: KeyframeId,
+    ) -> Vec<(TrackId, SVector<f64, 3>, bool)> {
+        // New points where the keyframe has none within `spacing`: the quadtree's
+        // equi-distributed order over its FAST corners with depth (thesis §3.4.3).
+        let (w, h) = (self.frame.gray().width(), self.frame.gray().height());
+        let min_cell = (self.spacing as f32 * 0.5).max(1.0);
+        let mut occupied = QuadTree::new(w as f32, h as f32, min_cell);
+        if let Some(kf) = graph.keyframe(keyframe) {
+            for (i, z) in kf.observations().values().enumerate() {
+                occupied.insert(QuadPoint {
+                    u: z.x as f32,
+                    v: z.y as f32,
+                    score: 0.0,
+                    index: i,
+                });
+            }
+        }
+        let corners = self.frame.corners.corners();
+        let candidates: Vec<QuadPoint> = corners
+            .iter()
+            .enumerate()
+            .map(|(i, c)| QuadPoint {
+                u: c.u,
+                v: c.v,
+                score: c.score,
+                index: i,
+            })
+            .collect();
+        let tree = QuadTree::from_points(w as f32, h as f32, min_cell, &candidates);
+        let r = self.spacing as f32;
+        let mut out = Vec::new();
+        for c in tree.traverse(self.frame.index as u64) {
+            if out.len() >= self.max_new_points {
+                break;
+            }
+            if occupied.count_in_box(c.u - r, c.v - r, c.u + r, c.v + r) > 0 {
+                continue;
+            }
+            let Some(z) = self.stereo_measurement(Vector2::new(c.u as f64, c.v as f64)) else {
+                continue;
+            };
+            occupied.insert(c);
+            let track = *self.next_track;
+            *self.next_track += 1;
+            out.push((track, z, false));
+        }
+        out
+    }
+
+    fn points_created(&mut self, created: &[(TrackId, PointId)]) {
+        self.created.extend_from_slice(created);
+    }
+}

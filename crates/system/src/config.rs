@@ -1,0 +1,351 @@
+//! The live system's parameters: every threshold with a default chosen from a principle (the
+//! reason is written beside it), all overridable in a YAML config file (`dwslam run --config`).
+
+use serde::Deserialize;
+use std::path::Path;
+
+/// Why a config file was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read the config file {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The YAML is malformed, has an unknown key or a value of the wrong type.
+    #[error("config file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: String,
+        /// What is wrong (the parser names the line).
+        message: String,
+    },
+    /// A value is out of its range.
+    #[error("config: {0}")]
+    Invalid(String),
+}
+
+/// Every parameter of the live system.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SystemConfig {
+    /// Pixel noise σ of the feature measurements (pixels): information `I/σ²` in tracking and
+    /// optimisation. One pixel: FAST corners refined to sub-pixel by patch alignment are
+    /// located to a fraction of a pixel on sharp images, to about a pixel on the motion-blurred
+    /// frames of hand-held cameras.
+    pub pixel_noise: f64,
+    /// The per-frame tracker.
+    pub tracker: TrackerConfig,
+    /// When a frame becomes a keyframe and what it adds to the map.
+    pub keyframes: KeyframeConfig,
+    /// The keyframe pipeline (`slam::mapping`).
+    pub mapping: MappingConfig,
+    /// Double window optimisation.
+    pub optimiser: OptimiserConfig,
+    /// Stereo block matching (stereo sensors).
+    pub stereo: StereoConfig,
+}
+
+impl Default for SystemConfig {
+    fn default() -> Self {
+        SystemConfig {
+            pixel_noise: 1.0,
+            tracker: TrackerConfig::default(),
+            keyframes: KeyframeConfig::default(),
+            mapping: MappingConfig::default(),
+            optimiser: OptimiserConfig::default(),
+            stereo: StereoConfig::default(),
+        }
+    }
+}
+
+/// Parameters of the per-frame tracker (thesis §6.3).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrackerConfig {
+    /// FAST threshold (grey levels). 12: the Kinect's colour camera and rendered images both
+    /// give several hundred corners per 640×480 frame at this level, while sensor noise (σ of
+    /// 2–3 grey levels) stays far below it.
+    pub fast_threshold: u8,
+    /// Pyramid levels of the dense prior.
+    pub pyramid_levels: usize,
+    /// The dense prior (eq. 6.7) stops at this pyramid level: its job is a prior good to a
+    /// couple of pixels for the guided search (which refines to sub-pixel accuracy), and a
+    /// level-2 pixel is 4 pixels at full resolution — alignment to a fraction of that is within
+    /// the search radius, at 1/16 of level 0's cost (7-Scenes, 1000 frames: the same ATE as
+    /// level 1 in a quarter of the time).
+    pub dense_finest_level: usize,
+    /// Gauss-Newton iterations per level of the dense prior (it converges in a few from the
+    /// constant-velocity guess; 10 bound the worst case).
+    pub dense_iterations: usize,
+    /// Guided-search radius after a good dense prior (pixels; thesis §6.3: 1–3).
+    pub search_radius: f64,
+    /// Guided-search radius when the prior is weak (dense alignment failed: constant
+    /// velocity only).
+    pub wide_search_radius: f64,
+    /// A patch matches when its normalised cross-correlation with the warped 8×8 template is
+    /// at least this. Correlation is invariant to the gain and offset changes of auto-exposure,
+    /// and its threshold means the same on sharp and blurred, high- and low-contrast patches:
+    /// 0.8 accepts a patch whose texture variance is four times the noise variance of the
+    /// difference (on 7-Scenes a zero-mean SSD gate, which depends on contrast, lost a fifth of
+    /// the true matches on blurred frames).
+    pub min_ncc: f32,
+    /// At most this many candidate points are searched per frame, chosen spread over the image
+    /// (a pose is over-determined hundreds of times by them; more only costs time).
+    pub max_searched: usize,
+    /// A candidate is searched only if the angle between its rays from the anchor keyframe
+    /// and from the current camera is below this (degrees): beyond it the template, warped for
+    /// a fronto-parallel plane, no longer predicts the patch (PTAM's visibility test).
+    pub max_view_angle_deg: f64,
+    /// Inliers (after motion-only BA) for a good frame. 40: twenty times over-determined.
+    pub min_good: usize,
+    /// Inliers below which the frame is lost (its pose is then the prior). 12: a six-DoF pose
+    /// from 3D measurements is over-determined sixfold, with margin for the outliers the χ²
+    /// gate lets through.
+    pub min_tracked: usize,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        TrackerConfig {
+            fast_threshold: 12,
+            pyramid_levels: 4,
+            dense_finest_level: 2,
+            dense_iterations: 10,
+            search_radius: 3.0,
+            wide_search_radius: 12.0,
+            min_ncc: 0.8,
+            max_searched: 400,
+            max_view_angle_deg: 35.0,
+            min_good: 40,
+            min_tracked: 12,
+        }
+    }
+}
+
+/// When a frame becomes a keyframe (thesis §6.2.6) and what it adds.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct KeyframeConfig {
+    /// A keyframe when the camera moved this fraction of the median scene depth away from
+    /// every keyframe of `N1` (the parallax that makes a new view informative: 10 %, about
+    /// 6° at the scene).
+    pub parallax: f64,
+    /// ... or rotated this much (degrees) from the reference keyframe: the field of view moves
+    /// on and the reference's points leave the image.
+    pub rotation_deg: f64,
+    /// ... or fewer of the candidate points than this fraction were found (the map around
+    /// the camera is thin).
+    pub min_found_fraction: f64,
+    /// New points per keyframe: at most this many, equi-distributed by the quadtree
+    /// (thesis §3.4.3).
+    pub max_new_points: usize,
+    /// A new point needs this much room (pixels) from the keyframe's tracked points.
+    pub new_point_spacing: f64,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        KeyframeConfig {
+            parallax: 0.1,
+            rotation_deg: 10.0,
+            min_found_fraction: 0.5,
+            max_new_points: 300,
+            new_point_spacing: 10.0,
+        }
+    }
+}
+
+/// The keyframe pipeline's parameters that a user may change (`slam::mapping::MappingConfig`).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MappingConfig {
+    /// `Θ`, covisible points for an edge (thesis §6.2.6: 15–30).
+    pub theta: usize,
+    /// Keyframes of `N2`, searched by metric loop closure.
+    pub n2: usize,
+    /// Guided-search radius of metric loop closure (pixels; thesis §6.4.1: e.g. 10).
+    pub loop_search_radius: f64,
+}
+
+impl Default for MappingConfig {
+    fn default() -> Self {
+        MappingConfig {
+            theta: 20,
+            n2: 100,
+            loop_search_radius: 10.0,
+        }
+    }
+}
+
+/// Double window optimisation (thesis §6.2.3–6.2.4).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OptimiserConfig {
+    /// `M1`, keyframes of the inner window.
+    pub inner: usize,
+    /// `M2`, keyframes of the outer window.
+    pub outer: usize,
+    /// Levenberg-Marquardt iterations per optimisation (thesis §6.5.1: 3).
+    pub iterations: usize,
+}
+
+impl Default for OptimiserConfig {
+    /// The thesis's stereo New College run used 25 / 175 (§6.5.2); the simulated spiral 15 /
+    /// 50. 20 / 100 keeps the inner window's bundle adjustment within a few tens of
+    /// milliseconds on one core while the outer window reaches the far side of a room.
+    fn default() -> Self {
+        OptimiserConfig {
+            inner: 20,
+            outer: 100,
+            iterations: 3,
+        }
+    }
+}
+
+/// Stereo block matching (thesis §6.3).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StereoConfig {
+    /// Largest disparity searched (pixels); `None`: from the camera, `f/6` rounded up to a
+    /// multiple of 16 — depths down to six baselines (KITTI's 0.54 m rig: 3.2 m, the nearest
+    /// road; EuRoC's 0.11 m: 0.7 m). Nearer points have no depth (they are tracked, not
+    /// initialised). On the KITTI snippet 64 disparities (down to 6 m) gave 9.7 cm ATE, 128
+    /// gave 6.4 cm.
+    pub max_disparity: Option<usize>,
+    /// Block radius (the block is `(2r+1)²`).
+    pub block_radius: usize,
+}
+
+impl Default for StereoConfig {
+    /// Disparities from the camera, 9×9 blocks (`vision::stereo`'s default, checked on
+    /// Middlebury).
+    fn default() -> Self {
+        StereoConfig {
+            max_disparity: None,
+            block_radius: 4,
+        }
+    }
+}
+
+impl StereoConfig {
+    /// The largest disparity searched for a camera of focal length `focal` (pixels).
+    pub fn max_disparity_for(&self, focal: f64) -> usize {
+        self.max_disparity
+            .unwrap_or_else(|| ((focal / 6.0 / 16.0).ceil() as usize).max(1) * 16)
+    }
+}
+
+impl SystemConfig {
+    /// Reads a YAML config file: keys it gives override the defaults; an unknown key is an
+    /// error naming it.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_yaml(&text).map_err(|e| match e {
+            ConfigError::Parse { message, .. } => ConfigError::Parse {
+                path: path.display().to_string(),
+                message,
+            },
+            other => other,
+        })
+    }
+
+    /// Parses YAML text (see [`from_file`](Self::from_file)).
+    pub fn from_yaml(text: &str) -> Result<Self, ConfigError> {
+        let config: SystemConfig = if text.trim().is_empty() {
+            SystemConfig::default()
+        } else {
+            serde_saphyr::from_str(text).map_err(|e| ConfigError::Parse {
+                path: "<text>".into(),
+                message: e.to_string(),
+            })?
+        };
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |s: String| Err(ConfigError::Invalid(s));
+        if !(self.pixel_noise.is_finite() && self.pixel_noise > 0.0) {
+            return bad(format!(
+                "pixel_noise must be positive (got {})",
+                self.pixel_noise
+            ));
+        }
+        let t = &self.tracker;
+        if t.pyramid_levels == 0 || t.dense_finest_level >= t.pyramid_levels {
+            return bad(format!(
+                "tracker.dense_finest_level ({}) must be below tracker.pyramid_levels ({})",
+                t.dense_finest_level, t.pyramid_levels
+            ));
+        }
+        if !(t.search_radius > 0.0 && t.wide_search_radius >= t.search_radius) {
+            return bad(
+                "tracker.search_radius must be positive and at most tracker.wide_search_radius"
+                    .into(),
+            );
+        }
+        if !(t.min_ncc > 0.0 && t.min_ncc < 1.0) {
+            return bad(format!(
+                "tracker.min_ncc must lie in (0, 1) (got {})",
+                t.min_ncc
+            ));
+        }
+        if t.min_tracked < 6 || t.min_good < t.min_tracked {
+            return bad(format!(
+                "tracker.min_tracked must be at least 6 (a pose) and at most tracker.min_good (got {}, {})",
+                t.min_tracked, t.min_good
+            ));
+        }
+        let k = &self.keyframes;
+        if !(k.parallax > 0.0
+            && k.rotation_deg > 0.0
+            && (0.0..=1.0).contains(&k.min_found_fraction))
+        {
+            return bad("keyframes.parallax and rotation_deg must be positive, min_found_fraction in [0, 1]".into());
+        }
+        if self.optimiser.inner == 0 || self.optimiser.iterations == 0 {
+            return bad("optimiser.inner and optimiser.iterations must be at least 1".into());
+        }
+        if self.mapping.theta == 0 {
+            return bad("mapping.theta must be at least 1".into());
+        }
+        if self.stereo.max_disparity == Some(0) {
+            return bad("stereo.max_disparity must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn yaml_overrides_defaults_and_refuses_unknown_keys() {
+        let c =
+            SystemConfig::from_yaml("tracker:\n  search_radius: 2.5\noptimiser:\n  inner: 10\n")
+                .unwrap();
+        assert_eq!(c.tracker.search_radius, 2.5);
+        assert_eq!(c.optimiser.inner, 10);
+        assert_eq!(c.optimiser.outer, OptimiserConfig::default().outer);
+        assert_eq!(
+            SystemConfig::from_yaml("").unwrap(),
+            SystemConfig::default()
+        );
+        let e = SystemConfig::from_yaml("tracker:\n  serch_radius: 2\n").unwrap_err();
+        assert!(e.to_string().contains("serch_radius"), "{e}");
+        let e = SystemConfig::from_yaml("pixel_noise: -1\n").unwrap_err();
+        assert!(e.to_string().contains("pixel_noise"), "{e}");
+        let e = SystemConfig::from_yaml("tracker:\n  dense_finest_level: 9\n").unwrap_err();
+        assert!(e.to_string().contains("dense_finest_level"), "{e}");
+    }
+}

@@ -1,0 +1,375 @@
+//! Sensor front-ends (thesis §6.3, §6.5.3): a frame from the reader becomes what tracking
+//! needs — the grey image's pyramid, its FAST corners indexed by position, and per-pixel depth
+//! (from stereo block matching, or from the depth camera: RGB-D as a virtual stereo camera).
+
+use crate::config::SystemConfig;
+use data::camera::SensorModel;
+use data::sequence::{Frame, FrameImages, RgbPlanes};
+use geom::{PinholeCamera, StereoCamera};
+use lie::Se3;
+use nalgebra::Vector3;
+use vision::fast::{Corner, fast9_level};
+use vision::image::{GrayImage, Image, ImageError};
+use vision::pyramid::Pyramid;
+use vision::stereo::{StereoParams, block_match, disparity_to_depth};
+
+/// Why a frame could not be prepared.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameError {
+    /// An image operation failed (sizes, too small).
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    /// The frame does not fit the sensor (e.g. a mono frame for a stereo run).
+    #[error("frame {index}: {what}")]
+    Sensor {
+        /// The frame.
+        index: usize,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+/// FAST corners of an image, indexed by a grid for radius queries.
+#[derive(Clone, Debug)]
+pub struct CornerIndex {
+    corners: Vec<Corner>,
+    cell: f32,
+    cols: usize,
+    rows: usize,
+    /// Start of each cell's corners in `order` (CSR layout: no allocation per cell).
+    start: Vec<u32>,
+    order: Vec<u32>,
+}
+
+impl CornerIndex {
+    /// Indexes `corners` of a `width × height` image with square cells of `cell` pixels.
+    pub fn new(corners: Vec<Corner>, width: usize, height: usize, cell: f32) -> Self {
+        let cols = ((width as f32 / cell).ceil() as usize).max(1);
+        let rows = ((height as f32 / cell).ceil() as usize).max(1);
+        let cell_of = |c: &Corner| -> usize {
+            let cu = ((c.u / cell) as usize).min(cols - 1);
+            let cv = ((c.v / cell) as usize).min(rows - 1);
+            cv * cols + cu
+        };
+        let mut count = vec![0u32; cols * rows + 1];
+        for c in &corners {
+            count[cell_of(c) + 1] += 1;
+        }
+        for i in 1..count.len() {
+            count[i] += count[i - 1];
+        }
+        let mut fill = count.clone();
+        let mut order = vec![0u32; corners.len()];
+        for (i, c) in corners.iter().enumerate() {
+            let k = cell_of(c);
+            order[fill[k] as usize] = i as u32;
+            fill[k] += 1;
+        }
+        CornerIndex {
+            corners,
+            cell,
+            cols,
+            rows,
+            start: count,
+            order,
+        }
+    }
+
+    /// All corners.
+    pub fn corners(&self) -> &[Corner] {
+        &self.corners
+    }
+
+    /// The corners within `radius` of `(u, v)`, appended to `out` (cleared first).
+    pub fn within(&self, u: f32, v: f32, radius: f32, out: &mut Vec<Corner>) {
+        out.clear();
+        let lo = |x: f32| ((x - radius) / self.cell).floor().max(0.0) as usize;
+        let (c0, r0) = (lo(u), lo(v));
+        let c1 = (((u + radius) / self.cell) as usize).min(self.cols - 1);
+        let r1 = (((v + radius) / self.cell) as usize).min(self.rows - 1);
+        let r2 = radius * radius;
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let k = r * self.cols + c;
+                for &i in &self.order[self.start[k] as usize..self.start[k + 1] as usize] {
+                    let p = self.corners[i as usize];
+                    let (du, dv) = (p.u - u, p.v - v);
+                    if du * du + dv * dv <= r2 {
+                        out.push(p);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The depth at an image point (a keypoint, a sampled pixel) unless it lies on a depth edge:
+/// the depth of the nearest pixel, accepted only if the valid depths of its
+/// `(2·radius+1)²` neighbourhood all lie within `edge_ratio` (relative) of it. FAST corners often
+/// sit on depth discontinuities, where the pixel's depth may belong to either side (and, with
+/// colour and depth not registered exactly, to the wrong one); a relative spread of a few
+/// percent over one pixel is what a surface shows even at grazing angles (at 3 m and 80° of
+/// slant, 1 px spans 1 % of depth), while a discontinuity shows much more.
+pub fn depth_off_edges(
+    depth: &impl Fn(usize, usize) -> Option<f64>,
+    u: f64,
+    v: f64,
+    radius: usize,
+    edge_ratio: f64,
+) -> Option<f64> {
+    if !(u.is_finite() && v.is_finite()) || u < -0.5 || v < -0.5 {
+        return None;
+    }
+    let (pu, pv) = ((u + 0.5) as usize, (v + 0.5) as usize);
+    let d = depth(pu, pv).filter(|d| d.is_finite() && *d > 0.0)?;
+    let r = radius as i64;
+    for dv in -r..=r {
+        for du in -r..=r {
+            let (nu, nv) = (pu as i64 + du, pv as i64 + dv);
+            if nu < 0 || nv < 0 || (du, dv) == (0, 0) {
+                continue;
+            }
+            if let Some(n) = depth(nu as usize, nv as usize)
+                && n.is_finite()
+                && n > 0.0
+                && (n - d).abs() > edge_ratio * d
+            {
+                return None;
+            }
+        }
+    }
+    Some(d)
+}
+
+/// Pixel `(x, y)` of a depth image in metres, `None` outside or where invalid.
+pub fn pixel_depth(depth: &Image<f32>, x: usize, y: usize) -> Option<f64> {
+    if x >= depth.width() || y >= depth.height() {
+        return None;
+    }
+    let z = depth.get(x, y);
+    (z.is_finite() && z > 0.0).then_some(z as f64)
+}
+
+/// The relative depth difference within a point's neighbourhood that still counts as one
+/// smooth surface (see [`FrameData::depth_at`]): 3 %, three times the Kinect's noise at 2 m
+/// (σ_z ≈ 1.5·10⁻³·z²) and the disparity error of a quarter pixel at 20 px of stereo
+/// disparity, far below a depth step between objects.
+pub const DEPTH_AGREEMENT: f32 = 0.03;
+
+/// A frame prepared for tracking.
+#[derive(Clone, Debug)]
+pub struct FrameData {
+    /// Position in the sequence.
+    pub index: usize,
+    /// Seconds.
+    pub timestamp: f64,
+    /// The grey (left / colour) image's pyramid.
+    pub pyramid: Pyramid,
+    /// FAST corners of level 0.
+    pub corners: CornerIndex,
+    /// Depth per pixel of level 0 in metres (`NaN` where unknown); `None` for frames without
+    /// depth (an RGB-D frame whose depth image is missing).
+    pub depth: Option<Image<f32>>,
+    /// Colour planes, where the images have colour.
+    pub colour: Option<RgbPlanes>,
+    /// Ground truth `world_from_camera`, if the dataset has it.
+    pub ground_truth: Option<Se3>,
+}
+
+impl FrameData {
+    /// The grey image (level 0).
+    pub fn gray(&self) -> &GrayImage {
+        &self.pyramid.levels[0]
+    }
+
+    /// The depth (metres) at pixel `(u, v)`: the nearest pixel's, if the valid depths of its
+    /// 5×5 neighbourhood agree with it to [`DEPTH_AGREEMENT`] ([`depth_off_edges`]). Corners lie on
+    /// object boundaries more often than not, where a depth image (or a disparity map's
+    /// blocks) mixes the foreground with the background, and where a depth camera not
+    /// registered to the colour camera puts the wrong surface's depth: a point gets its depth
+    /// only where the surface around it is smooth.
+    pub fn depth_at(&self, u: f64, v: f64) -> Option<f64> {
+        let d = self.depth.as_ref()?;
+        depth_off_edges(
+            &|x, y| pixel_depth(d, x, y),
+            u,
+            v,
+            2,
+            DEPTH_AGREEMENT as f64,
+        )
+    }
+}
+
+/// The sensor of a live run: its camera (for RGB-D the virtual stereo camera, thesis §6.5.3)
+/// and how it gets depth.
+#[derive(Clone, Debug)]
+pub struct SensorFrontEnd {
+    camera: StereoCamera,
+    kind: DepthSource,
+    stereo: StereoParams,
+    fast_threshold: u8,
+    levels: usize,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum DepthSource {
+    BlockMatching,
+    DepthImage,
+}
+
+impl SensorFrontEnd {
+    /// The front-end of `sensor` (stereo or RGB-D; monocular runs are a later issue).
+    pub fn new(sensor: &SensorModel, config: &SystemConfig) -> Result<Self, FrameError> {
+        let (camera, kind) = match sensor {
+            SensorModel::Stereo(s) => (*s, DepthSource::BlockMatching),
+            SensorModel::Rgbd(r) => (r.stereo, DepthSource::DepthImage),
+            SensorModel::Mono(_) => {
+                return Err(FrameError::Sensor {
+                    index: 0,
+                    what: "a monocular camera: the live system runs stereo and RGB-D sensors"
+                        .into(),
+                });
+            }
+        };
+        Ok(SensorFrontEnd {
+            camera,
+            kind,
+            stereo: StereoParams {
+                max_disparity: config.stereo.max_disparity_for(camera.pinhole.fx),
+                block_radius: config.stereo.block_radius,
+                ..StereoParams::default()
+            },
+            fast_threshold: config.tracker.fast_threshold,
+            levels: config.tracker.pyramid_levels,
+        })
+    }
+
+    /// The (virtual) stereo camera whose measurements `(u_l, v_l, u_r)` the map uses.
+    pub fn camera(&self) -> &StereoCamera {
+        &self.camera
+    }
+
+    /// The pinhole of the left / colour image.
+    pub fn pinhole(&self) -> &PinholeCamera {
+        &self.camera.pinhole
+    }
+
+    /// The stereo measurement `(u, v, u − f·b/z)` of a pixel with depth `z`.
+    pub fn measurement(&self, u: f64, v: f64, depth: f64) -> Vector3<f64> {
+        Vector3::new(
+            u,
+            v,
+            u - self.camera.pinhole.fx * self.camera.baseline / depth,
+        )
+    }
+
+    /// Prepares a frame: pyramid, FAST corners, depth.
+    pub fn prepare(&self, frame: Frame) -> Result<FrameData, FrameError> {
+        let Frame {
+            index,
+            timestamp,
+            images,
+            world_from_camera,
+        } = frame;
+        let (gray, depth, colour) = match (images, self.kind) {
+            (FrameImages::Stereo { left, right }, DepthSource::BlockMatching) => {
+                let disparity = block_match(&left, &right, &self.stereo)?;
+                let depth =
+                    disparity_to_depth(&disparity, self.camera.pinhole.fx, self.camera.baseline);
+                (left, Some(depth), None)
+            }
+            (
+                FrameImages::Rgbd {
+                    image,
+                    colour,
+                    depth,
+                },
+                DepthSource::DepthImage,
+            ) => (image, depth.map(|d| d.to_metres()), colour),
+            (other, _) => {
+                return Err(FrameError::Sensor {
+                    index,
+                    what: format!(
+                        "a {} frame for a {} sensor",
+                        match other {
+                            FrameImages::Mono { .. } => "mono",
+                            FrameImages::Stereo { .. } => "stereo",
+                            FrameImages::Rgbd { .. } => "RGB-D",
+                        },
+                        match self.kind {
+                            DepthSource::BlockMatching => "stereo",
+                            DepthSource::DepthImage => "RGB-D",
+                        }
+                    ),
+                });
+            }
+        };
+        let pyramid = Pyramid::new(&gray, self.levels, 16)?;
+        let (w, h) = (gray.width(), gray.height());
+        let corners = fast9_level(&pyramid.levels[0], self.fast_threshold, true, 0);
+        Ok(FrameData {
+            index,
+            timestamp,
+            corners: CornerIndex::new(corners, w, h, 16.0),
+            pyramid,
+            depth,
+            colour,
+            ground_truth: world_from_camera,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_edges_are_rejected() {
+        // (radius 1: the 3×3 neighbourhood)
+        // A step from 1 m to 2 m between columns 9 and 10.
+        let depth =
+            |u: usize, v: usize| (u < 40 && v < 40).then_some(if u < 10 { 1.0 } else { 2.0 });
+        assert_eq!(depth_off_edges(&depth, 5.0, 5.0, 1, 0.05), Some(1.0));
+        assert_eq!(depth_off_edges(&depth, 20.2, 5.4, 1, 0.05), Some(2.0));
+        assert_eq!(depth_off_edges(&depth, 9.0, 5.0, 1, 0.05), None);
+        assert_eq!(depth_off_edges(&depth, 10.0, 5.0, 1, 0.05), None);
+        // Invalid neighbours (outside) do not reject; an invalid centre does.
+        assert_eq!(depth_off_edges(&depth, 39.0, 39.0, 1, 0.05), Some(2.0));
+        assert_eq!(depth_off_edges(&depth, 45.0, 5.0, 1, 0.05), None);
+        assert_eq!(depth_off_edges(&depth, f64::NAN, 5.0, 1, 0.05), None);
+        // A slanted plane (1 % per pixel) passes.
+        let slant = |u: usize, _v: usize| Some(2.0 * (1.0 + 0.01 * u as f64));
+        assert!(depth_off_edges(&slant, 30.0, 3.0, 1, 0.05).is_some());
+    }
+
+    #[test]
+    fn the_corner_index_finds_exactly_the_corners_in_a_radius() {
+        let corners: Vec<Corner> = (0..400)
+            .map(|i| Corner {
+                u: (i * 37 % 640) as f32 + 0.5,
+                v: (i * 53 % 480) as f32 + 0.25,
+                score: 1.0,
+                level: 0,
+            })
+            .collect();
+        let index = CornerIndex::new(corners.clone(), 640, 480, 16.0);
+        let mut out = Vec::new();
+        for (u, v, r) in [
+            (100.0, 100.0, 30.0),
+            (0.0, 0.0, 50.0),
+            (639.0, 479.0, 3.0),
+            (320.0, 240.0, 200.0),
+        ] {
+            index.within(u, v, r, &mut out);
+            let mut expect: Vec<(f32, f32)> = corners
+                .iter()
+                .filter(|c| (c.u - u).powi(2) + (c.v - v).powi(2) <= r * r)
+                .map(|c| (c.u, c.v))
+                .collect();
+            let mut got: Vec<(f32, f32)> = out.iter().map(|c| (c.u, c.v)).collect();
+            expect.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            got.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            assert_eq!(got, expect, "({u}, {v}) r {r}");
+        }
+    }
+}

@@ -1,0 +1,653 @@
+//! The live system (thesis §6.5.2): frames in, every frame's pose and the map out.
+//!
+//! Per frame, in the calling thread (the tracking thread): the sensor front-end (pyramid, FAST,
+//! depth), the tracker (dense prior, guided search, motion-only BA), and, when the frame is a
+//! keyframe, the keyframe pipeline's stages (`slam::mapping`: insertion with local
+//! registration, metric loop closure, new points). Double window optimisation runs
+//!
+//! - in its own thread ([`Mode::Threaded`], the default), on the shared graph: it plans under a
+//!   read lock, optimises without a lock and writes back under a short write lock, so tracking
+//!   never waits for it; a new keyframe wakes it (a bounded channel of one: notifications that
+//!   arrive while it works coalesce, it re-plans from the newest graph);
+//! - or after every keyframe in the calling thread ([`Mode::Deterministic`]): the same stages
+//!   at fixed points of the frame stream, so two runs give identical trajectories.
+
+use crate::association::KeyframeAssociation;
+use crate::config::SystemConfig;
+use crate::frame::{FrameData, FrameError, SensorFrontEnd};
+use crate::keyframes::{KeyframeReason, KeyframeStore, keyframe_reason};
+use crate::tracker::{Tracked, Tracker, TrackerStats};
+use data::camera::SensorModel;
+use data::output::{FrameRecord, KeyframeRecord, MapPoint, RunRecord, StageTimings, TrackingState};
+use data::trajectory::Trajectory;
+use geom::StereoCamera;
+use lie::{LieGroup, Se3, Sim3};
+use slam::dwo::{DoubleWindowOptimiser, DwoError, DwoParams, DwoStats};
+use slam::map::{KeyframeId, SharedGraph, SlamGraph};
+use slam::mapping::{KeyframeReport, Mapper, MappingError};
+use slam::tracking::TrackId;
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::sync::{Arc, Mutex, RwLock};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// How the back-end runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Mode {
+    /// Double window optimisation in its own thread (the live system of thesis §6.5.2).
+    #[default]
+    Threaded,
+    /// Everything in the calling thread, in a fixed order: identical outputs run to run.
+    Deterministic,
+}
+
+/// Why the system stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum SystemError {
+    /// A frame could not be prepared.
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+    /// The keyframe pipeline failed.
+    #[error("keyframe from frame {frame}: {source}")]
+    Mapping {
+        /// The frame.
+        frame: usize,
+        /// The cause.
+        source: MappingError,
+    },
+    /// The double window optimisation failed.
+    #[error("double window optimisation: {0}")]
+    Optimisation(#[from] DwoError),
+    /// The configuration is invalid.
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+}
+
+/// What happened to one frame.
+#[derive(Clone, Debug)]
+pub struct FrameReport {
+    /// The frame.
+    pub index: usize,
+    /// Its state.
+    pub state: TrackingState,
+    /// The keyframe it became, and why.
+    pub keyframe: Option<(KeyframeId, KeyframeReason)>,
+    /// The tracker's counts (none for the first frame).
+    pub stats: Option<TrackerStats>,
+    /// Time of the whole frame in the tracking thread.
+    pub time: Duration,
+    /// Time of the tracking stages (the keyframe pipeline excluded).
+    pub time_tracking: Duration,
+}
+
+/// A loop closure the run made.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoopEvent {
+    /// The new keyframe.
+    pub keyframe: KeyframeId,
+    /// The old keyframe it was joined to.
+    pub old: KeyframeId,
+    /// The frames the two keyframes were made from.
+    pub frames: (usize, usize),
+    /// `"metric"` or `"appearance"`.
+    pub kind: &'static str,
+}
+
+/// Everything a run produced.
+#[derive(Clone, Debug)]
+pub struct RunResult {
+    /// Every frame with its live pose (as tracked), the keyframes and the map after the final
+    /// optimisation, per-stage timings.
+    pub record: RunRecord,
+    /// Every frame re-expressed relative to its reference keyframe after the final
+    /// optimisation (`T = T_rel·T_ref`): the trajectory a user gets after the run.
+    pub final_trajectory: Trajectory,
+    /// Per frame: the tracker's counts and times.
+    pub frames: Vec<FrameReport>,
+    /// The loop closures.
+    pub loops: Vec<LoopEvent>,
+    /// The optimisations (time and window sizes of each).
+    pub optimisations: Vec<DwoStats>,
+    /// The final graph.
+    pub graph: SlamGraph<3>,
+    /// The keyframes' images.
+    pub keyframes: KeyframeStore,
+}
+
+/// The double window optimisation thread.
+struct Worker {
+    wake: SyncSender<()>,
+    handle: JoinHandle<DoubleWindowOptimiser>,
+}
+
+/// The live stereo / RGB-D SLAM system.
+pub struct LiveSystem {
+    config: SystemConfig,
+    mode: Mode,
+    sensor: SensorFrontEnd,
+    tracker: Tracker,
+    graph: Arc<SharedGraph<3>>,
+    store: Arc<RwLock<KeyframeStore>>,
+    mapper: Mapper<StereoCamera, 3>,
+    /// The optimiser while it runs in this thread (deterministic mode, and after the run).
+    optimiser: Option<DoubleWindowOptimiser>,
+    worker: Option<Worker>,
+    optimisations: Arc<Mutex<Vec<DwoStats>>>,
+    optimisation_errors: Arc<Mutex<Vec<String>>>,
+    next_track: TrackId,
+    record: RunRecord,
+    /// Per frame with a pose: `(frame position in record.frames, reference, T·T_ref⁻¹)`.
+    relative: Vec<(usize, KeyframeId, Sim3)>,
+    reports: Vec<FrameReport>,
+    loops: Vec<LoopEvent>,
+}
+
+impl LiveSystem {
+    /// A system for `sensor` (stereo or RGB-D) with `config`; `sequence` names the input in the
+    /// outputs.
+    pub fn new(
+        sensor: &SensorModel,
+        config: SystemConfig,
+        mode: Mode,
+        sequence: &str,
+    ) -> Result<Self, SystemError> {
+        config.validate()?;
+        let front = SensorFrontEnd::new(sensor, &config)?;
+        let camera = *front.camera();
+        let sigma = config.pixel_noise;
+        let tracker = Tracker::new(config.tracker.clone(), camera, sigma);
+        let mapping = slam::mapping::MappingConfig {
+            theta: config.mapping.theta,
+            n2: config.mapping.n2,
+            ..slam::mapping::MappingConfig::new(
+                sigma,
+                (2.0 * camera.pinhole.cx + 1.0, 2.0 * camera.pinhole.cy + 1.0),
+                3,
+            )
+        };
+        let mut params = DwoParams::new(
+            config.optimiser.inner,
+            config.optimiser.outer,
+            camera.pinhole.fx,
+            sigma,
+        )
+        .with_baseline(camera.baseline);
+        params.iterations = config.optimiser.iterations;
+        let graph = Arc::new(SharedGraph::new(SlamGraph::new()));
+        let optimisations = Arc::new(Mutex::new(Vec::new()));
+        let optimisation_errors = Arc::new(Mutex::new(Vec::new()));
+        let optimiser = DoubleWindowOptimiser::new(params);
+        let (optimiser, worker) = match mode {
+            Mode::Deterministic => (Some(optimiser), None),
+            Mode::Threaded => (
+                None,
+                Some(spawn_worker(
+                    optimiser,
+                    graph.clone(),
+                    camera,
+                    optimisations.clone(),
+                    optimisation_errors.clone(),
+                )),
+            ),
+        };
+        Ok(LiveSystem {
+            mode,
+            sensor: front,
+            tracker,
+            graph,
+            store: Arc::new(RwLock::new(KeyframeStore::new())),
+            mapper: Mapper::new(camera, mapping),
+            optimiser,
+            worker,
+            optimisations,
+            optimisation_errors,
+            next_track: 0,
+            record: RunRecord {
+                sequence: sequence.to_string(),
+                sensor: match sensor {
+                    SensorModel::Stereo(_) => "stereo",
+                    SensorModel::Rgbd(_) => "rgbd",
+                    SensorModel::Mono(_) => "mono",
+                }
+                .to_string(),
+                ..RunRecord::default()
+            },
+            relative: Vec::new(),
+            reports: Vec::new(),
+            loops: Vec::new(),
+            config,
+        })
+    }
+
+    /// The shared graph (for viewers; hold its lock briefly).
+    pub fn graph(&self) -> &Arc<SharedGraph<3>> {
+        &self.graph
+    }
+
+    /// The record so far (for writing outputs while the run goes on).
+    pub fn record(&self) -> &RunRecord {
+        &self.record
+    }
+
+    /// Processes one frame.
+    pub fn process(&mut self, frame: data::sequence::Frame) -> Result<FrameReport, SystemError> {
+        let start = Instant::now();
+        let (index, timestamp) = (frame.index, frame.timestamp);
+        let t = Instant::now();
+        let frame = Arc::new(self.sensor.prepare(frame)?);
+        self.record
+            .timings
+            .record("frame: pyramid, FAST, depth", t.elapsed());
+        let empty = self.graph.read().num_keyframes() == 0;
+        let report = if empty {
+            self.initialise(&frame)?
+        } else {
+            self.track(&frame)?
+        };
+        let report = FrameReport {
+            time: start.elapsed(),
+            ..report
+        };
+        self.record.timings.record("frame: total", report.time);
+        debug_assert_eq!(self.record.frames.last().map(|f| f.index), Some(index));
+        let _ = timestamp;
+        self.reports.push(report.clone());
+        Ok(report)
+    }
+
+    /// Records a frame that could not be read (the reader's `--on-bad-frame skip`): it has no
+    /// pose; the state says why.
+    pub fn skip_frame(&mut self, index: usize, timestamp: f64, reason: String) {
+        self.record.frames.push(FrameRecord {
+            index,
+            timestamp,
+            world_from_camera: None,
+            state: TrackingState::Lost(reason.clone()),
+        });
+        self.reports.push(FrameReport {
+            index,
+            state: TrackingState::Lost(reason),
+            keyframe: None,
+            stats: None,
+            time: Duration::ZERO,
+            time_tracking: Duration::ZERO,
+        });
+    }
+
+    fn initialise(&mut self, frame: &Arc<FrameData>) -> Result<FrameReport, SystemError> {
+        if frame.depth.is_none() {
+            let state = TrackingState::Lost("no depth image to start the map from".into());
+            self.push_frame(frame, None, state.clone(), None);
+            return Ok(FrameReport {
+                index: frame.index,
+                state,
+                keyframe: None,
+                stats: None,
+                time: Duration::ZERO,
+                time_tracking: Duration::ZERO,
+            });
+        }
+        let pose = Sim3::identity();
+        let keyframe = self.make_keyframe(frame, pose, Vec::new())?;
+        self.tracker.set_pose(frame, Se3::identity());
+        let state = TrackingState::Good;
+        self.push_frame(frame, Some(pose), state.clone(), Some(keyframe));
+        Ok(FrameReport {
+            index: frame.index,
+            state,
+            keyframe: Some((keyframe, KeyframeReason::First)),
+            stats: None,
+            time: Duration::ZERO,
+            time_tracking: Duration::ZERO,
+        })
+    }
+
+    fn track(&mut self, frame: &Arc<FrameData>) -> Result<FrameReport, SystemError> {
+        let t = Instant::now();
+        let store_lock = self.store.clone();
+        let store = store_lock.read().unwrap_or_else(|e| e.into_inner());
+        let tracked = self.tracker.track(&self.graph, &store, frame);
+        drop(store);
+        let Some(tracked) = tracked else {
+            let state = TrackingState::Lost("no reference keyframe to track against".into());
+            self.push_frame(frame, None, state.clone(), None);
+            return Ok(FrameReport {
+                index: frame.index,
+                state,
+                keyframe: None,
+                stats: None,
+                time: Duration::ZERO,
+                time_tracking: t.elapsed(),
+            });
+        };
+        let time_tracking = t.elapsed();
+        for (stage, d) in &tracked.timings {
+            self.record.timings.record(stage, *d);
+        }
+        self.record.timings.record("track: total", time_tracking);
+        let Tracked {
+            camera_from_world,
+            state,
+            matches,
+            reference,
+            median_depth,
+            stats,
+            ..
+        } = tracked;
+        // Revisits reuse the map (thesis §6.5.2): the keyframe that sees most of what this frame
+        // tracked becomes the reference when it is at least as near as the current one, so a
+        // camera browsing a mapped place tracks against its keyframes instead of adding new ones.
+        let reference = if matches!(state, TrackingState::Lost(_)) {
+            reference
+        } else {
+            self.reuse_reference(reference, &camera_from_world, &matches)
+        };
+        let reason = if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_)) {
+            let g = self.graph.read();
+            keyframe_reason(
+                &self.config.keyframes,
+                &g,
+                &camera_from_world,
+                stats.found,
+                stats.searched,
+                median_depth,
+            )
+        } else {
+            None
+        };
+        let keyframe = match reason {
+            Some(reason) => {
+                let t = Instant::now();
+                let k = self.make_keyframe(frame, camera_from_world, matches)?;
+                self.record
+                    .timings
+                    .record("keyframe: pipeline", t.elapsed());
+                Some((k, reason))
+            }
+            None => None,
+        };
+        self.push_frame(
+            frame,
+            Some(camera_from_world),
+            state.clone(),
+            keyframe.as_ref().map(|(k, _)| *k).or(Some(reference)),
+        );
+        Ok(FrameReport {
+            index: frame.index,
+            state,
+            keyframe,
+            stats: Some(stats),
+            time: Duration::ZERO,
+            time_tracking,
+        })
+    }
+
+    /// The keyframe to track the next frame against: of the keyframes observing this frame's
+    /// matched points, the one observing most of them, if it is no farther from the camera than
+    /// the current reference (else the current reference). Made the graph's reference.
+    fn reuse_reference(
+        &mut self,
+        reference: KeyframeId,
+        camera_from_world: &Sim3,
+        matches: &[(slam::map::PointId, nalgebra::Vector3<f64>)],
+    ) -> KeyframeId {
+        let best = {
+            let g = self.graph.read();
+            let mut seen: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
+            for (p, _) in matches {
+                if let Some(pt) = g.point(*p) {
+                    for &o in pt.observers() {
+                        *seen.entry(o).or_default() += 1;
+                    }
+                }
+            }
+            let centre = |t: &Sim3| t.inverse().act(&nalgebra::Vector3::zeros());
+            let here = centre(camera_from_world);
+            let distance = |k: KeyframeId| {
+                g.pose(k)
+                    .map_or(f64::INFINITY, |t| (centre(&t) - here).norm())
+            };
+            let own = seen.get(&reference).copied().unwrap_or(0);
+            seen.into_iter()
+                .filter(|&(k, n)| k != reference && n > own && distance(k) <= distance(reference))
+                .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+                .map(|(k, _)| k)
+        };
+        match best {
+            Some(k) if self.graph.write().set_reference(k).is_ok() => k,
+            _ => reference,
+        }
+    }
+
+    /// Records a frame's pose and state; `reference` is the keyframe its pose is kept relative
+    /// to for the final trajectory.
+    fn push_frame(
+        &mut self,
+        frame: &FrameData,
+        camera_from_world: Option<Sim3>,
+        state: TrackingState,
+        reference: Option<KeyframeId>,
+    ) {
+        if let (Some(pose), Some(r)) = (camera_from_world, reference)
+            && let Ok(t_r) = self.graph.read().pose(r)
+        {
+            self.relative
+                .push((self.record.frames.len(), r, pose.compose(&t_r.inverse())));
+        }
+        self.record.frames.push(FrameRecord {
+            index: frame.index,
+            timestamp: frame.timestamp,
+            world_from_camera: camera_from_world.map(|t| t.rigid_part().inverse()),
+            state,
+        });
+    }
+
+    /// Makes `frame` a keyframe at `camera_from_world` with its tracked `matches`: the
+    /// keyframe pipeline's stages, then the optimisation (inline, or by waking its thread).
+    fn make_keyframe(
+        &mut self,
+        frame: &Arc<FrameData>,
+        camera_from_world: Sim3,
+        matches: Vec<(slam::map::PointId, nalgebra::Vector3<f64>)>,
+    ) -> Result<KeyframeId, SystemError> {
+        let store_lock = self.store.clone();
+        let store = store_lock.read().unwrap_or_else(|e| e.into_inner());
+        let min_disparity = self.mapper.config().min_disparity;
+        let mut association = KeyframeAssociation::new(
+            frame,
+            &store,
+            &self.sensor,
+            camera_from_world,
+            matches,
+            &self.config,
+            min_disparity,
+            &mut self.next_track,
+        );
+        let images = association.images();
+        // The stages of the keyframe pipeline under the graph's write lock (they take a few
+        // milliseconds; the optimisation is not among them).
+        let report: KeyframeReport = self
+            .mapper
+            .map_keyframe(&mut self.graph.write(), &mut association)
+            .map_err(|source| SystemError::Mapping {
+                frame: frame.index,
+                source,
+            })?;
+        let keyframe = report.keyframe;
+        for (stage, d) in &report.stage_times {
+            self.record.timings.record(stage, *d);
+        }
+        drop(store);
+        self.store
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(keyframe, images);
+        for closure in &report.metric_loops {
+            self.loop_event(keyframe, closure.keyframe, "metric");
+        }
+        if let Some(old) = report.appearance_loop {
+            self.loop_event(keyframe, old, "appearance");
+        }
+        self.optimise()?;
+        Ok(keyframe)
+    }
+
+    fn loop_event(&mut self, keyframe: KeyframeId, old: KeyframeId, kind: &'static str) {
+        let store = self.store.read().unwrap_or_else(|e| e.into_inner());
+        let frame_of = |k: KeyframeId| store.get(k).map_or(usize::MAX, |i| i.frame_index);
+        self.loops.push(LoopEvent {
+            keyframe,
+            old,
+            frames: (frame_of(keyframe), frame_of(old)),
+            kind,
+        });
+    }
+
+    /// One double window optimisation: now (deterministic) or in the worker (threaded).
+    fn optimise(&mut self) -> Result<(), SystemError> {
+        if self.graph.read().num_keyframes() < 2 {
+            return Ok(());
+        }
+        match (&mut self.optimiser, &self.worker) {
+            (Some(optimiser), _) => {
+                let stats = optimiser.optimise_shared(&self.graph, self.sensor.camera())?;
+                self.record
+                    .timings
+                    .record("optimise: double window", stats.total());
+                self.optimisations
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push(stats);
+            }
+            (None, Some(worker)) => match worker.wake.try_send(()) {
+                // A wake-up is pending: the worker will see this keyframe too.
+                Ok(()) | Err(TrySendError::Full(())) => {}
+                Err(TrySendError::Disconnected(())) => {}
+            },
+            (None, None) => {}
+        }
+        Ok(())
+    }
+
+    /// Ends the run: stops the optimisation thread, runs a last optimisation, and collects the
+    /// outputs (keyframes and map after it, every frame's final pose).
+    pub fn finish(mut self, interrupted: bool) -> Result<RunResult, SystemError> {
+        if let Some(worker) = self.worker.take() {
+            drop(worker.wake);
+            let optimiser = worker
+                .handle
+                .join()
+                .expect("the optimisation thread does not panic");
+            self.optimiser = Some(optimiser);
+        }
+        self.optimise()?;
+        for e in self
+            .optimisation_errors
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+        {
+            eprintln!("warning: {e}");
+        }
+        let graph = self.graph.snapshot();
+        let store = self.store.read().unwrap_or_else(|e| e.into_inner()).clone();
+        self.record.interrupted = interrupted;
+        self.record.keyframes = graph
+            .keyframes()
+            .filter_map(|(k, kf)| {
+                let images = store.get(k)?;
+                Some(KeyframeRecord {
+                    id: k.index(),
+                    frame_index: images.frame_index,
+                    timestamp: images.timestamp,
+                    world_from_camera: kf.camera_from_world().rigid_part().inverse(),
+                })
+            })
+            .collect();
+        self.record.points = graph
+            .points()
+            .filter_map(|(p, pt)| {
+                let position = graph.point_world(p).ok()?;
+                let z = graph.keyframe(pt.anchor())?.observations().get(&p)?;
+                let colour = store.get(pt.anchor()).map(|i| i.colour_at(z.x, z.y));
+                Some(MapPoint { position, colour })
+            })
+            .collect();
+        let mut final_trajectory = Trajectory::default();
+        for &(i, r, rel) in &self.relative {
+            let Ok(t_r) = graph.pose(r) else { continue };
+            final_trajectory
+                .timestamps
+                .push(self.record.frames[i].timestamp);
+            final_trajectory
+                .world_from_body
+                .push(rel.compose(&t_r).rigid_part().inverse());
+        }
+        let optimisations = self
+            .optimisations
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        Ok(RunResult {
+            record: self.record,
+            final_trajectory,
+            frames: self.reports,
+            loops: self.loops,
+            optimisations,
+            graph,
+            keyframes: store,
+        })
+    }
+
+    /// The mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Record a stage's time measured outside (e.g. the reader's wait).
+    pub fn record_timing(&mut self, stage: &str, d: Duration) {
+        self.record.timings.record(stage, d);
+    }
+
+    /// Timings so far.
+    pub fn timings(&self) -> &StageTimings {
+        &self.record.timings
+    }
+}
+
+/// The optimisation thread: woken by each new keyframe, it optimises the shared graph; a result
+/// superseded by a change to the window's poses meanwhile is re-planned at once.
+fn spawn_worker(
+    mut optimiser: DoubleWindowOptimiser,
+    graph: Arc<SharedGraph<3>>,
+    camera: StereoCamera,
+    stats: Arc<Mutex<Vec<DwoStats>>>,
+    errors: Arc<Mutex<Vec<String>>>,
+) -> Worker {
+    let (wake, wakes): (SyncSender<()>, Receiver<()>) = sync_channel(1);
+    let handle = std::thread::Builder::new()
+        .name("double window optimisation".into())
+        .spawn(move || {
+            while wakes.recv().is_ok() {
+                for _attempt in 0..3 {
+                    match optimiser.optimise_shared(&graph, &camera) {
+                        Ok(s) => {
+                            stats.lock().unwrap_or_else(|e| e.into_inner()).push(s);
+                            break;
+                        }
+                        Err(DwoError::Superseded { .. }) => continue,
+                        Err(e) => {
+                            errors
+                                .lock()
+                                .unwrap_or_else(|e| e.into_inner())
+                                .push(e.to_string());
+                            break;
+                        }
+                    }
+                }
+            }
+            optimiser
+        })
+        .expect("a thread can be spawned");
+    Worker { wake, handle }
+}

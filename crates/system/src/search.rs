@@ -1,0 +1,151 @@
+//! Guided search of map points in an image (thesis §3.4.2, §6.3, PTAM): each point's template
+//! is warped from its anchor keyframe's image by the predicted relative pose (a fronto-parallel
+//! patch at the point's depth), compared by zero-mean SSD with the FAST corners inside a
+//! radius around the prediction, and the best match is refined to sub-pixel accuracy.
+
+use crate::frame::CornerIndex;
+use crate::keyframes::KeyframeImages;
+use geom::PinholeCamera;
+use lie::{LieGroup, Se3};
+use nalgebra::{Vector2, Vector3};
+use slam::map::{KeyframeId, PointId, SlamGraph};
+use vision::fast::Corner;
+use vision::image::GrayImage;
+use vision::patch::{Patch, affine_from_pose, nssd, refine_subpixel, template_with_gradient};
+
+/// A map point as the search needs it, copied out of the graph.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SearchPoint {
+    /// The point.
+    pub point: PointId,
+    /// Its anchor keyframe.
+    pub anchor: KeyframeId,
+    /// Its measured pixel in the anchor.
+    pub anchor_pixel: Vector2<f64>,
+    /// Its depth in the anchor's frame.
+    pub anchor_depth: f64,
+    /// The anchor's pose (rigid part).
+    pub anchor_from_world: Se3,
+    /// The point in world coordinates.
+    pub world: Vector3<f64>,
+}
+
+impl SearchPoint {
+    /// Point `p` of the graph, if it exists and its anchor measures it.
+    pub fn from_graph<const N: usize>(graph: &SlamGraph<N>, p: PointId) -> Option<Self> {
+        let pt = graph.point(p)?;
+        let anchor = pt.anchor();
+        let z = graph.keyframe(anchor)?.observations().get(&p)?;
+        Some(SearchPoint {
+            point: p,
+            anchor,
+            anchor_pixel: Vector2::new(z[0], z[1]),
+            anchor_depth: graph.point_in_anchor(p).ok()?.z,
+            anchor_from_world: graph.pose(anchor).ok()?.rigid_part(),
+            world: graph.point_world(p).ok()?,
+        })
+    }
+}
+
+/// Where a point should appear in an image with pose `camera_from_world`, if in front of the
+/// camera and inside the image by `margin` pixels: `(pixel, depth)`.
+pub fn predict(
+    camera: &PinholeCamera,
+    camera_from_world: &Se3,
+    point: &SearchPoint,
+    width: usize,
+    height: usize,
+    margin: f64,
+) -> Option<(Vector2<f64>, f64)> {
+    let x = camera_from_world.act(&point.world);
+    if x.z <= 1e-6 {
+        return None;
+    }
+    let u = Vector2::new(
+        camera.fx * x.x / x.z + camera.cx,
+        camera.fy * x.y / x.z + camera.cy,
+    );
+    let inside = u.x >= margin
+        && u.y >= margin
+        && u.x < width as f64 - margin
+        && u.y < height as f64 - margin;
+    inside.then_some((u, x.z))
+}
+
+/// The angle (radians) between the rays from the anchor's and the current camera's centre to
+/// the point (PTAM's visibility test: a template warped for a fronto-parallel plane predicts
+/// the patch only for moderate changes of viewpoint).
+pub fn view_angle(camera_from_world: &Se3, point: &SearchPoint) -> f64 {
+    let centre = |t: &Se3| t.inverse().act(&Vector3::zeros());
+    let a = point.world - centre(&point.anchor_from_world);
+    let b = point.world - centre(camera_from_world);
+    (a.dot(&b) / (a.norm() * b.norm())).clamp(-1.0, 1.0).acos()
+}
+
+/// A reusable scratch buffer for [`search`] (no allocation per point).
+#[derive(Default)]
+pub struct SearchScratch {
+    corners: Vec<Corner>,
+}
+
+/// Searches `point` in `image` (pose `camera_from_world`, FAST corners `corners`) within
+/// `radius` pixels of its prediction; the template comes from `anchor`'s image. The corner
+/// whose patch correlates best with the template wins if the correlation is at least
+/// `min_ncc`. Returns the sub-pixel match, or `None` (no corner in the radius, none correlating
+/// enough, or the template leaves the anchor image).
+#[allow(clippy::too_many_arguments)]
+pub fn search(
+    camera: &PinholeCamera,
+    camera_from_world: &Se3,
+    point: &SearchPoint,
+    anchor: &KeyframeImages,
+    image: &GrayImage,
+    corners: &CornerIndex,
+    radius: f64,
+    min_ncc: f32,
+    scratch: &mut SearchScratch,
+) -> Option<Vector2<f64>> {
+    let cur_from_anchor = camera_from_world.compose(&point.anchor_from_world.inverse());
+    let (predicted, warp) = affine_from_pose(
+        camera,
+        camera,
+        &point.anchor_pixel,
+        point.anchor_depth,
+        &cur_from_anchor,
+    )?;
+    let (ua, va) = (point.anchor_pixel.x as f32, point.anchor_pixel.y as f32);
+    let template = Patch::extract_warped(&anchor.gray, ua, va, &warp)?;
+    corners.within(
+        predicted.x as f32,
+        predicted.y as f32,
+        radius as f32,
+        &mut scratch.corners,
+    );
+    // NSSD = 2 − 2·NCC: the smallest wins. The prediction itself is a candidate too: FAST
+    // fires on the same corner in only about half of the frames of a hand-held camera (blur,
+    // noise), and sub-pixel alignment from the prediction finds the patch where the detector
+    // did not.
+    let max_nssd = 2.0 - 2.0 * min_ncc;
+    let mut best: Option<(f32, f32, f32)> = None;
+    let candidates = scratch
+        .corners
+        .iter()
+        .map(|c| (c.u, c.v))
+        .chain(std::iter::once((predicted.x as f32, predicted.y as f32)));
+    for (u, v) in candidates {
+        let Some(p) = Patch::extract(image, u, v) else {
+            continue;
+        };
+        let s = nssd(&template, &p);
+        if best.is_none_or(|b| s < b.2) {
+            best = Some((u, v, s));
+        }
+    }
+    let (u, v, _) = best?;
+    let refined = template_with_gradient(&anchor.gray, ua, va, &warp)
+        .and_then(|tg| refine_subpixel(&tg, image, [u, v], 10))
+        .unwrap_or([u, v]);
+    // The correlation where the match ends up decides.
+    let p = Patch::extract(image, refined[0], refined[1])?;
+    (nssd(&template, &p) <= max_nssd).then(|| Vector2::new(refined[0] as f64, refined[1] as f64))
+}

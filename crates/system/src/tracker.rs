@@ -1,0 +1,377 @@
+//! The per-frame tracker (thesis §6.3): a pose prior from dense photometric alignment against
+//! the last frame with depth (eq. 6.7), the candidate points of the reference keyframe's
+//! neighbourhood `N1` (§6.2.5) with PTAM's visibility tests, guided patch search in a small
+//! radius around their predictions, and robust motion-only BA (eq. 4.15) — with a tracking
+//! state per frame.
+//!
+//! The graph is read under its lock only to copy the candidates out; the search and the
+//! optimisation run without it.
+
+use crate::config::TrackerConfig;
+use crate::frame::FrameData;
+use crate::keyframes::KeyframeStore;
+use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
+use data::output::TrackingState;
+use geom::StereoCamera;
+use lie::{LieGroup, Se3, Sim3};
+use nalgebra::{SVector, Vector2, Vector3};
+use slam::map::{KeyframeId, PointId, SharedGraph};
+use slam::tracking::{MotionOnlyOptions, PoseProblem, tracking_candidates};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use vision::dense::{DenseParams, align_pyramids};
+use vision::quadtree::{QuadPoint, QuadTree};
+
+/// Where the pose prior of a frame came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Prior {
+    /// Dense photometric alignment (thesis eq. 6.7): good to a pixel or two.
+    Dense,
+    /// Constant velocity only (dense alignment failed or there was no frame with depth): the
+    /// search radius widens.
+    ConstantVelocity,
+}
+
+/// Counts of one frame's tracking.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TrackerStats {
+    /// Candidate points of `N1`.
+    pub candidates: usize,
+    /// Candidates passing the visibility tests.
+    pub visible: usize,
+    /// Candidates searched (at most the configured number, spread over the image).
+    pub searched: usize,
+    /// Candidates found.
+    pub found: usize,
+    /// Matches consistent with the pose after motion-only BA.
+    pub inliers: usize,
+}
+
+/// One frame's tracking.
+#[derive(Clone, Debug)]
+pub struct Tracked {
+    /// The estimated pose.
+    pub camera_from_world: Sim3,
+    /// How well it was tracked.
+    pub state: TrackingState,
+    /// The inlier matches with stereo measurements `(u, v, u_r)` (what a keyframe observes).
+    pub matches: Vec<(PointId, Vector3<f64>)>,
+    /// The reference keyframe it was tracked against.
+    pub reference: KeyframeId,
+    /// Median depth of the found points (metres), for the keyframe criterion.
+    pub median_depth: f64,
+    /// Where the prior came from.
+    pub prior: Option<Prior>,
+    /// Counts.
+    pub stats: TrackerStats,
+    /// Time per stage.
+    pub timings: Vec<(&'static str, Duration)>,
+}
+
+/// The last frame with depth: the reference of the next dense alignment.
+struct DenseReference {
+    frame: Arc<FrameData>,
+    camera_from_world: Se3,
+}
+
+/// The per-frame tracker (see the [module docs](self)).
+pub struct Tracker {
+    config: TrackerConfig,
+    sigma: f64,
+    camera: StereoCamera,
+    /// The last frame's index and pose.
+    last: Option<(usize, Se3)>,
+    /// Per-frame motion `T_k·T_{k−1}⁻¹`.
+    velocity: Se3,
+    dense_reference: Option<DenseReference>,
+    scratch: SearchScratch,
+}
+
+impl Tracker {
+    /// A tracker for `camera` (the sensor's stereo or virtual stereo camera) with measurement
+    /// noise `sigma` pixels.
+    pub fn new(config: TrackerConfig, camera: StereoCamera, sigma: f64) -> Self {
+        Tracker {
+            config,
+            sigma,
+            camera,
+            last: None,
+            velocity: Se3::identity(),
+            dense_reference: None,
+            scratch: SearchScratch::default(),
+        }
+    }
+
+    /// Records `frame`'s pose as known (the first keyframe), the start of the motion model.
+    pub fn set_pose(&mut self, frame: &Arc<FrameData>, camera_from_world: Se3) {
+        self.last = Some((frame.index, camera_from_world));
+        self.velocity = Se3::identity();
+        if frame.depth.is_some() {
+            self.dense_reference = Some(DenseReference {
+                frame: frame.clone(),
+                camera_from_world,
+            });
+        }
+    }
+
+    /// The constant-velocity prediction for frame `index` (the last motion per frame, applied
+    /// once for every frame since the last one: dropped frames are bridged).
+    fn predict(&self, index: usize) -> Option<Se3> {
+        let (last_index, last) = self.last?;
+        let steps = index.saturating_sub(last_index).max(1) as f64;
+        Some(Se3::exp(&(self.velocity.log() * steps)).compose(&last))
+    }
+
+    /// Tracks `frame` against the map.
+    pub fn track(
+        &mut self,
+        graph: &SharedGraph<3>,
+        store: &KeyframeStore,
+        frame: &Arc<FrameData>,
+    ) -> Option<Tracked> {
+        let mut timings = Vec::new();
+        let predicted = self.predict(frame.index)?;
+        let camera = self.camera.pinhole;
+        // 1. The prior: dense alignment against the last frame with depth.
+        let t = Instant::now();
+        let mut prior = Prior::ConstantVelocity;
+        let mut pose_prior = predicted;
+        if let Some(reference) = &self.dense_reference {
+            let params = DenseParams {
+                levels: self.config.pyramid_levels,
+                finest_level: self.config.dense_finest_level,
+                max_iterations: self.config.dense_iterations,
+                ..DenseParams::default()
+            };
+            let initial = predicted.compose(&reference.camera_from_world.inverse());
+            if let Some(depth) = &reference.frame.depth
+                && let Ok(r) = align_pyramids(
+                    &reference.frame.pyramid,
+                    depth,
+                    &frame.pyramid,
+                    &camera,
+                    &initial,
+                    &params,
+                )
+                && r.num_residuals >= 100
+                && r.final_cost.is_finite()
+            {
+                pose_prior = r.cur_from_ref.compose(&reference.camera_from_world);
+                prior = Prior::Dense;
+            }
+        }
+        timings.push(("track: dense prior", t.elapsed()));
+        // 2. The candidates of N1, copied out under the read lock.
+        let t = Instant::now();
+        let (reference, t_ref, points) = {
+            let g = graph.read();
+            let reference = g.reference()?;
+            let t_ref = g.pose(reference).ok()?;
+            let points: Vec<SearchPoint> = tracking_candidates(&g, reference)
+                .into_iter()
+                .filter_map(|p| SearchPoint::from_graph(&g, p))
+                .collect();
+            (reference, t_ref, points)
+        };
+        let mut stats = TrackerStats {
+            candidates: points.len(),
+            ..TrackerStats::default()
+        };
+        // 3. Visibility (PTAM): in the image, in front, not seen from too different a view.
+        let (w, h) = (frame.gray().width(), frame.gray().height());
+        let max_angle = self.config.max_view_angle_deg.to_radians();
+        let visible: Vec<(usize, Vector2<f64>)> = points
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| {
+                let (u, _) = predict(&camera, &pose_prior, p, w, h, 6.0)?;
+                (view_angle(&pose_prior, p) < max_angle).then_some((i, u))
+            })
+            .collect();
+        stats.visible = visible.len();
+        // At most `max_searched`, spread over the image (thesis Alg. 2).
+        let selected: Vec<(usize, Vector2<f64>)> = if visible.len() > self.config.max_searched {
+            let quad: Vec<QuadPoint> = visible
+                .iter()
+                .enumerate()
+                .map(|(k, (_, u))| QuadPoint {
+                    u: u.x as f32,
+                    v: u.y as f32,
+                    score: 0.0,
+                    index: k,
+                })
+                .collect();
+            QuadTree::from_points(w as f32, h as f32, 2.0, &quad)
+                .select(self.config.max_searched, frame.index as u64)
+                .into_iter()
+                .map(|q| visible[q.index])
+                .collect()
+        } else {
+            visible
+        };
+        stats.searched = selected.len();
+        timings.push(("track: candidates", t.elapsed()));
+        // 4. Guided search.
+        let t = Instant::now();
+        let radius = match prior {
+            Prior::Dense => self.config.search_radius,
+            Prior::ConstantVelocity => self.config.wide_search_radius,
+        };
+        let mut found: Vec<(usize, Vector2<f64>)> = Vec::with_capacity(selected.len());
+        for (i, _) in &selected {
+            let p = &points[*i];
+            let Some(anchor) = store.get(p.anchor) else {
+                continue;
+            };
+            if let Some(u) = search(
+                &camera,
+                &pose_prior,
+                p,
+                anchor,
+                frame.gray(),
+                &frame.corners,
+                radius,
+                self.config.min_ncc,
+                &mut self.scratch,
+            ) {
+                found.push((*i, u));
+            }
+        }
+        stats.found = found.len();
+        timings.push(("track: guided search", t.elapsed()));
+        // 5. Robust motion-only BA from the prior: stereo measurements where the frame has
+        // depth, else pixels only.
+        let t = Instant::now();
+        let prior_sim3 = Sim3::from_se3(&pose_prior);
+        let in_ref = |i: usize| t_ref.act(&points[i].world);
+        let stereo: Vec<(usize, Vector3<f64>)> = found
+            .iter()
+            .filter_map(|(i, u)| {
+                let d = frame.depth_at(u.x, u.y)?;
+                Some((
+                    *i,
+                    Vector3::new(u.x, u.y, u.x - camera.fx * self.camera.baseline / d),
+                ))
+            })
+            .collect();
+        let options = MotionOnlyOptions {
+            min_matches: 6,
+            ..MotionOnlyOptions::robust(self.sigma)
+        };
+        let (fit, matches_used): (Option<(Sim3, Vec<f64>)>, Vec<usize>) =
+            if stereo.len() >= self.config.min_tracked {
+                let problem = PoseProblem::new(
+                    t_ref,
+                    stereo.iter().map(|(i, _)| in_ref(*i)).collect(),
+                    stereo
+                        .iter()
+                        .map(|(_, z)| *z)
+                        .collect::<Vec<SVector<f64, 3>>>(),
+                    &prior_sim3,
+                );
+                (
+                    problem
+                        .solve(&self.camera, &options)
+                        .ok()
+                        .map(|f| (f.camera_from_world, f.chi2)),
+                    stereo.iter().map(|(i, _)| *i).collect(),
+                )
+            } else {
+                let problem = PoseProblem::new(
+                    t_ref,
+                    found.iter().map(|(i, _)| in_ref(*i)).collect(),
+                    found.iter().map(|(_, u)| *u).collect::<Vec<Vector2<f64>>>(),
+                    &prior_sim3,
+                );
+                (
+                    problem
+                        .solve(&camera, &options)
+                        .ok()
+                        .map(|f| (f.camera_from_world, f.chi2)),
+                    found.iter().map(|(i, _)| *i).collect(),
+                )
+            };
+        timings.push(("track: motion-only BA", t.elapsed()));
+        let dim = if stereo.len() >= self.config.min_tracked {
+            3
+        } else {
+            2
+        };
+        let gate = lsq::chi2_quantile(dim, 0.95);
+        let (pose, inliers) = match &fit {
+            Some((pose, chi2)) => (
+                *pose,
+                matches_used
+                    .iter()
+                    .zip(chi2)
+                    .filter(|&(_, &c)| c <= gate)
+                    .map(|(&i, _)| i)
+                    .collect::<Vec<usize>>(),
+            ),
+            None => (prior_sim3, Vec::new()),
+        };
+        stats.inliers = inliers.len();
+        let state = if inliers.len() >= self.config.min_good {
+            TrackingState::Good
+        } else if inliers.len() >= self.config.min_tracked {
+            TrackingState::Weak(format!(
+                "{} inliers of {} matches ({} searched)",
+                inliers.len(),
+                found.len(),
+                selected.len()
+            ))
+        } else {
+            TrackingState::Lost(format!(
+                "{} inliers of {} matches ({} searched, {} visible): the pose is the {}",
+                inliers.len(),
+                found.len(),
+                selected.len(),
+                stats.visible,
+                match prior {
+                    Prior::Dense => "dense prior",
+                    Prior::ConstantVelocity => "constant-velocity prediction",
+                }
+            ))
+        };
+        let camera_from_world = match state {
+            TrackingState::Lost(_) => prior_sim3,
+            _ => pose,
+        };
+        let stereo_of: std::collections::BTreeMap<usize, Vector3<f64>> =
+            stereo.iter().copied().collect();
+        let matches: Vec<(PointId, Vector3<f64>)> = inliers
+            .iter()
+            .filter_map(|i| stereo_of.get(i).map(|z| (points[*i].point, *z)))
+            .collect();
+        let mut depths: Vec<f64> = inliers
+            .iter()
+            .map(|&i| camera_from_world.rigid_part().act(&points[i].world).z)
+            .filter(|z| *z > 0.0)
+            .collect();
+        depths.sort_by(f64::total_cmp);
+        let median_depth = depths.get(depths.len() / 2).copied().unwrap_or(f64::NAN);
+        // 6. The motion model and the next dense reference.
+        let rigid = camera_from_world.rigid_part();
+        if let Some((last_index, last)) = self.last {
+            let steps = frame.index.saturating_sub(last_index).max(1) as f64;
+            self.velocity = Se3::exp(&(rigid.compose(&last.inverse()).log() / steps));
+        }
+        self.last = Some((frame.index, rigid));
+        if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_)) {
+            self.dense_reference = Some(DenseReference {
+                frame: frame.clone(),
+                camera_from_world: rigid,
+            });
+        }
+        Some(Tracked {
+            camera_from_world,
+            state,
+            matches,
+            reference,
+            median_depth,
+            prior: Some(prior),
+            stats,
+            timings,
+        })
+    }
+}
