@@ -3,7 +3,8 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
-use data::dataset_writer::{Calibration, EurocWriter, KittiWriter, TumWriter};
+use data::camera::{CameraIntrinsics, LensDistortion};
+use data::dataset_writer::{EurocWriter, KittiWriter, TumWriter};
 use geom::RadTan;
 use nalgebra::Vector3;
 use sim::render::sensor::{ExposureChanges, MotionBlur};
@@ -71,7 +72,8 @@ pub struct RenderArgs {
     /// Output directory (created; must be empty if it exists).
     #[arg(long)]
     pub out: PathBuf,
-    /// Stereo baseline in metres (EuRoC's VI-sensor: 0.11).
+    /// Stereo baseline in metres (EuRoC's VI-sensor: 0.11); for mono KITTI output, the rig's
+    /// right camera stated in calib.txt's P1.
     #[arg(long, default_value_t = 0.11)]
     pub baseline: f64,
     /// Radial-tangential distortion K1,K2,P1,P2 of the rendered images (EuRoC cam0:
@@ -207,29 +209,20 @@ fn layout_for(sensor: SensorArg, layout: Option<LayoutArg>, distorted: bool) -> 
     Ok(layout)
 }
 
-/// Checks that `out` can be written and holds no earlier output: creates it, and a probe file.
+/// Checks that `out` holds no earlier output, then that it can be written (creates it).
 fn prepare_out(out: &Path) -> Result<()> {
-    if out.exists() {
-        if !out.is_dir() {
-            bail!("--out {}: exists and is not a directory", out.display());
-        }
-        let mut entries = std::fs::read_dir(out)
-            .with_context(|| format!("--out {}: cannot list", out.display()))?;
-        if entries.next().is_some() {
-            bail!(
-                "--out {}: not empty (remove it or pick another directory)",
-                out.display()
-            );
-        }
+    if out.is_dir()
+        && std::fs::read_dir(out)
+            .with_context(|| format!("--out {}: cannot list the folder", out.display()))?
+            .next()
+            .is_some()
+    {
+        bail!(
+            "--out {}: not empty (remove it or pick another folder)",
+            out.display()
+        );
     }
-    std::fs::create_dir_all(out)
-        .with_context(|| format!("--out {}: cannot create the directory", out.display()))?;
-    let probe = out.join(".dwslam-write-test");
-    std::fs::write(&probe, b"")
-        .with_context(|| format!("--out {}: not writable", out.display()))?;
-    std::fs::remove_file(&probe)
-        .with_context(|| format!("--out {}: cannot remove {}", out.display(), probe.display()))?;
-    Ok(())
+    crate::args::output_dir(out, "--out")
 }
 
 enum Writer {
@@ -285,19 +278,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
     {
         bail!("--threads must be at least 1");
     }
+    crate::args::positive(args.baseline, "--baseline (metres)")?;
     let kind = match args.sensor {
         SensorArg::Mono => SensorKind::Mono,
-        SensorArg::Stereo => {
-            if !(args.baseline > 0.0 && args.baseline.is_finite()) {
-                bail!(
-                    "--baseline must be a positive number of metres, got {}",
-                    args.baseline
-                );
-            }
-            SensorKind::Stereo {
-                baseline: args.baseline,
-            }
-        }
+        SensorArg::Stereo => SensorKind::Stereo {
+            baseline: args.baseline,
+        },
         SensorArg::Rgbd => SensorKind::Rgbd,
     };
     let mut sensor = SensorModel::new(kind, width, height);
@@ -343,11 +329,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         b.build().context("starting the worker threads")?
     };
 
-    let calibration = Calibration {
+    let calibration = CameraIntrinsics {
+        pinhole: sensor.camera.pinhole,
+        distortion: distortion.map_or(LensDistortion::None, LensDistortion::RadTan),
         width,
         height,
-        pinhole: sensor.camera.pinhole,
-        distortion,
     };
     let rate = scene.rate_hz();
     let name = format!(
@@ -368,10 +354,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
                 rate,
             )?)
         }
-        LayoutArg::Kitti => {
-            let baseline = matches!(kind, SensorKind::Stereo { .. }).then_some(args.baseline);
-            Writer::Kitti(KittiWriter::create(&args.out, &calibration, baseline)?)
-        }
+        LayoutArg::Kitti => Writer::Kitti(KittiWriter::create(
+            &args.out,
+            &calibration,
+            args.baseline,
+            matches!(kind, SensorKind::Stereo { .. }),
+        )?),
     };
     let n = sequence.len();
     println!(

@@ -4,9 +4,10 @@
 //! * [`TumWriter`]: TUM RGB-D — `rgb/<t>.png` (8-bit RGB), `depth/<t>.png` (16-bit, 5000 per
 //!   metre, 0 = no depth), `rgb.txt`, `depth.txt`, `groundtruth.txt` (`t tx ty tz qx qy qz qw`,
 //!   the colour camera in the world), with `t` in seconds with six decimals as TUM writes
-//!   them; TUM publishes no calibration file, so the intrinsics go into `camera.yaml` in the
-//!   ORB-SLAM3 settings format (`Camera.fx`, …, `DepthMapFactor`), the file one passes to a
-//!   TUM-reading system for a camera it does not know.
+//!   them; TUM publishes no calibration file (its readers take the Freiburg camera the folder
+//!   name names, else the ROS default 525/525/319.5/239.5, which is also the renderer's camera
+//!   at 640 × 480), so the calibration goes into `camera.yaml` in dwslam's camera YAML
+//!   ([`crate::camera_file`]) beside it, for `--camera` when it is another.
 //! * [`EurocWriter`]: EuRoC MAV (ASL) — `mav0/cam0` (and `cam1` for stereo) with `data/<ns>.png`
 //!   (8-bit grey), `data.csv` (`#timestamp [ns],filename`) and `sensor.yaml` (`T_BS`,
 //!   `rate_hz`, `resolution`, `intrinsics`, `distortion_coefficients`), `mav0/body.yaml`, and
@@ -16,14 +17,16 @@
 //! * [`KittiWriter`]: KITTI odometry — `image_0` (and `image_1`) with `NNNNNN.png` (8-bit grey),
 //!   `calib.txt` with the labelled rows `P0:`…`P3:` and `Tr:`, `times.txt` (seconds) and
 //!   `poses.txt` (camera 0 in the first frame's camera 0, row-major 3 × 4 per line, the first
-//!   the identity). KITTI images are rectified: a distorted camera is refused.
+//!   the identity). KITTI images are rectified: a distorted camera is refused. A mono sequence
+//!   still states its rig's right camera in `P1` (as every KITTI `calib.txt` does); only
+//!   `image_0` is written.
 //!
 //! Index and ground-truth lines are written (and flushed on [`finish`](TumWriter::finish)) as
 //! frames arrive, so an interrupted run leaves consistent files up to its last frame. Poses
 //! are printed so that they parse back to the same `f64` (Rust's shortest round-trip form).
 
+use crate::camera::{CameraIntrinsics, LensDistortion};
 use crate::text::fmt_f64;
-use geom::{PinholeCamera, RadTan};
 use lie::{LieGroup, Se3};
 use nalgebra::Vector3;
 use std::fs::File;
@@ -69,20 +72,6 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> WriteError + '_ {
     }
 }
 
-/// A camera's calibration: image size, pinhole intrinsics, optional radial-tangential
-/// distortion `(k₁, k₂, p₁, p₂)`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Calibration {
-    /// Image width (pixels).
-    pub width: usize,
-    /// Image height (pixels).
-    pub height: usize,
-    /// Intrinsics.
-    pub pinhole: PinholeCamera,
-    /// Distortion (`None`: none; `k₃` must be 0, as EuRoC's four-parameter model).
-    pub distortion: Option<RadTan>,
-}
-
 fn create_dir(path: &Path) -> Result<(), WriteError> {
     std::fs::create_dir_all(path).map_err(io_err(path))
 }
@@ -99,7 +88,7 @@ fn check_size<T>(
     layout: &'static str,
     what: &str,
     img: &Image<T>,
-    cal: &Calibration,
+    cal: &CameraIntrinsics,
 ) -> Result<(), WriteError>
 where
     T: Copy + Default,
@@ -154,6 +143,21 @@ fn write_grey(path: &Path, img: &Image<u8>) -> Result<(), WriteError> {
     )
 }
 
+/// The radial-tangential coefficients of a camera (zero for none); other models are refused.
+fn radtan(layout: &'static str, camera: &CameraIntrinsics) -> Result<geom::RadTan, WriteError> {
+    match camera.distortion {
+        LensDistortion::None => Ok(geom::RadTan::default()),
+        LensDistortion::RadTan(d) => Ok(d),
+        LensDistortion::Equidistant(_) if camera.distortion.is_identity() => {
+            Ok(geom::RadTan::default())
+        }
+        LensDistortion::Equidistant(_) => Err(WriteError::Invalid {
+            layout,
+            reason: "writes radial-tangential distortion only, not equidistant".into(),
+        }),
+    }
+}
+
 /// Checks that timestamps increase strictly.
 fn check_increasing(layout: &'static str, last: Option<u64>, t: u64) -> Result<(), WriteError> {
     if let Some(l) = last
@@ -199,7 +203,7 @@ fn pose_text(pose: &Se3) -> String {
 /// Writes a TUM RGB-D sequence (see the module notes).
 pub struct TumWriter {
     dir: PathBuf,
-    calibration: Calibration,
+    calibration: CameraIntrinsics,
     rgb: BufWriter<File>,
     depth: BufWriter<File>,
     groundtruth: BufWriter<File>,
@@ -213,38 +217,42 @@ impl TumWriter {
     pub fn create(
         dir: impl AsRef<Path>,
         name: &str,
-        calibration: &Calibration,
+        calibration: &CameraIntrinsics,
         rate_hz: f64,
     ) -> Result<Self, WriteError> {
         let dir = dir.as_ref().to_path_buf();
         create_dir(&dir.join("rgb"))?;
         create_dir(&dir.join("depth"))?;
         let p = &calibration.pinhole;
-        let d = calibration.distortion.unwrap_or_default();
-        let yaml = format!(
-            "%YAML:1.0\n\
-             # Camera calibration of this sequence in the ORB-SLAM3 settings format (TUM RGB-D\n\
-             # publishes its calibrations on its web page, not in the sequences).\n\
-             Camera.type: \"PinHole\"\n\
-             Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\n\
-             Camera.k1: {}\nCamera.k2: {}\nCamera.p1: {}\nCamera.p2: {}\nCamera.k3: {}\n\
-             Camera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.RGB: 1\n\
-             # Depth images: 16-bit PNG, value / DepthMapFactor = depth in metres, 0 = none.\n\
-             DepthMapFactor: {}\n",
-            yaml_f64(p.fx),
-            yaml_f64(p.fy),
-            yaml_f64(p.cx),
-            yaml_f64(p.cy),
-            yaml_f64(d.k1),
-            yaml_f64(d.k2),
-            yaml_f64(d.p1),
-            yaml_f64(d.p2),
-            yaml_f64(d.k3),
-            calibration.width,
-            calibration.height,
-            yaml_f64(rate_hz),
-            yaml_f64(TUM_DEPTH_SCALE),
-        );
+        let d = radtan("TUM RGB-D", calibration)?;
+        let distortion = if calibration.distortion.is_identity() {
+            String::new()
+        } else {
+            format!(
+                "  distortion:\n    model: radtan\n    coefficients: [{}, {}, {}, {}, {}]\n",
+                yaml_f64(d.k1),
+                yaml_f64(d.k2),
+                yaml_f64(d.p1),
+                yaml_f64(d.p2),
+                yaml_f64(d.k3)
+            )
+        };
+        let yaml = [
+            "# The calibration of this sequence (dwslam camera YAML; TUM RGB-D publishes its\n"
+                .to_string(),
+            "# calibrations on its web page, not in the sequences).\n".to_string(),
+            "dwslam_camera: 1\nsensor: rgbd\n".to_string(),
+            format!("fps: {}\n", yaml_f64(rate_hz)),
+            format!(
+                "camera:\n  width: {}\n  height: {}\n",
+                calibration.width, calibration.height
+            ),
+            format!("  fx: {}\n  fy: {}\n", yaml_f64(p.fx), yaml_f64(p.fy)),
+            format!("  cx: {}\n  cy: {}\n", yaml_f64(p.cx), yaml_f64(p.cy)),
+            distortion,
+            format!("depth:\n  units_per_metre: {}\n", yaml_f64(TUM_DEPTH_SCALE)),
+        ]
+        .concat();
         write_text(&dir.join("camera.yaml"), &yaml)?;
         let header =
             |path: &Path, what: &str, columns: &str| -> Result<BufWriter<File>, WriteError> {
@@ -361,7 +369,7 @@ struct EurocCamera {
 /// Writes a EuRoC MAV sequence, mono (`cam0`) or stereo (`cam0`, `cam1`), see the module notes.
 pub struct EurocWriter {
     mav0: PathBuf,
-    calibration: Calibration,
+    calibration: CameraIntrinsics,
     cameras: Vec<EurocCamera>,
     groundtruth: BufWriter<File>,
     last: Option<u64>,
@@ -373,13 +381,12 @@ impl EurocWriter {
     /// (rectified: the same intrinsics, moved along cam0's `x`); `None` for mono.
     pub fn create(
         dir: impl AsRef<Path>,
-        calibration: &Calibration,
+        calibration: &CameraIntrinsics,
         baseline: Option<f64>,
         rate_hz: f64,
     ) -> Result<Self, WriteError> {
-        if let Some(d) = calibration.distortion
-            && d.k3 != 0.0
-        {
+        let d = radtan("EuRoC", calibration)?;
+        if d.k3 != 0.0 {
             return Err(WriteError::Invalid {
                 layout: "EuRoC",
                 reason: format!(
@@ -403,7 +410,6 @@ impl EurocWriter {
         for (i, body_from_cam) in extrinsics.iter().enumerate() {
             let cam = mav0.join(format!("cam{i}"));
             create_dir(&cam.join("data"))?;
-            let d = calibration.distortion.unwrap_or_default();
             let yaml = format!(
                 "%YAML:1.0\n# General sensor definitions.\nsensor_type: camera\ncomment: dwslam rendered cam{i}\n\n\
                  # Sensor extrinsics wrt. the body-frame.\n{}\n\
@@ -518,7 +524,7 @@ fn c_exp(x: f64, digits: usize) -> String {
 /// module notes.
 pub struct KittiWriter {
     dir: PathBuf,
-    calibration: Calibration,
+    calibration: CameraIntrinsics,
     cameras: usize,
     times: BufWriter<File>,
     poses: BufWriter<File>,
@@ -529,31 +535,36 @@ pub struct KittiWriter {
 }
 
 impl KittiWriter {
-    /// Creates `dir` with `image_0` (and `image_1`), writes `calib.txt`: `P0 = K[I | 0]`,
-    /// `P1 = K[I | (−b, 0, 0)]` (`P1[0][3] = −f_x·b`; `b = 0` for mono), `P2 = P0`, `P3 = P1`
-    /// (these sequences have no separate colour cameras) and `Tr = [I | 0]` (no lidar), in
-    /// KITTI's `%.12e` format.
+    /// Creates `dir` with `image_0` (and `image_1` if `stereo`), writes `calib.txt`:
+    /// `P0 = K[I | 0]`, `P1 = K[I | (−b, 0, 0)]` (`P1[0][3] = −f_x·b`, the rig's right camera,
+    /// stated also for a mono sequence as KITTI does), `P2 = P0`, `P3 = P1` (these sequences
+    /// have no separate colour cameras) and `Tr = [I | 0]` (no lidar), in KITTI's `%.12e`
+    /// format.
     pub fn create(
         dir: impl AsRef<Path>,
-        calibration: &Calibration,
-        baseline: Option<f64>,
+        calibration: &CameraIntrinsics,
+        baseline: f64,
+        stereo: bool,
     ) -> Result<Self, WriteError> {
-        if calibration
-            .distortion
-            .is_some_and(|d| d != RadTan::default())
-        {
+        if !(baseline > 0.0 && baseline.is_finite()) {
+            return Err(WriteError::Invalid {
+                layout: "KITTI",
+                reason: format!("the baseline must be positive, got {baseline}"),
+            });
+        }
+        if !calibration.distortion.is_identity() {
             return Err(WriteError::Invalid {
                 layout: "KITTI",
                 reason: "KITTI images are rectified: a distorted camera cannot be written (use the EuRoC layout)".into(),
             });
         }
         let dir = dir.as_ref().to_path_buf();
-        let cameras = if baseline.is_some() { 2 } else { 1 };
+        let cameras = if stereo { 2 } else { 1 };
         for i in 0..cameras {
             create_dir(&dir.join(format!("image_{i}")))?;
         }
         let p = &calibration.pinhole;
-        let b = baseline.unwrap_or(0.0);
+        let b = baseline;
         let projection = |tx: f64| {
             [
                 p.fx, 0.0, p.cx, tx, 0.0, p.fy, p.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
@@ -644,14 +655,10 @@ impl KittiWriter {
 mod tests {
     use super::*;
     use crate::trajectory::{parse_euroc_groundtruth, parse_kitti, parse_tum, read_timestamps};
+    use geom::{PinholeCamera, RadTan};
 
-    fn calibration() -> Calibration {
-        Calibration {
-            width: 8,
-            height: 6,
-            pinhole: PinholeCamera::new(525.0, 524.5, 3.5, 2.5),
-            distortion: None,
-        }
+    fn calibration() -> CameraIntrinsics {
+        CameraIntrinsics::ideal(PinholeCamera::new(525.0, 524.5, 3.5, 2.5), 8, 6)
     }
 
     fn pose(k: usize) -> Se3 {
@@ -724,8 +731,18 @@ mod tests {
         assert_eq!(img.get(4, 2), 5500);
         let c = vision::image::load_rgb_planes(dir.join("rgb/1700000000.000000.png")).unwrap();
         assert_eq!((c[0].get(5, 1), c[1].get(5, 1), c[2].get(5, 1)), (5, 1, 7));
-        let yaml = std::fs::read_to_string(dir.join("camera.yaml")).unwrap();
-        assert!(yaml.contains("Camera.fy: 524.5\n") && yaml.contains("DepthMapFactor: 5000.0\n"));
+        // The camera file reads back as the same calibration.
+        let file = crate::camera_file::read_camera_file(dir.join("camera.yaml")).unwrap();
+        match file
+            .calibration(crate::camera::SensorKind::Rgbd, (8, 6), &dir)
+            .unwrap()
+        {
+            crate::camera::Calibration::Rgbd { camera, depth } => {
+                assert_eq!(camera, cal);
+                assert_eq!(depth.metres_per_unit, 1.0 / 5000.0);
+            }
+            other => panic!("{other:?}"),
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -733,7 +750,7 @@ mod tests {
     fn euroc_round_trip() {
         let dir = temp("euroc");
         let mut cal = calibration();
-        cal.distortion = Some(RadTan::new(-0.28, 0.07, 2e-4, 2e-5));
+        cal.distortion = LensDistortion::RadTan(RadTan::new(-0.28, 0.07, 2e-4, 2e-5));
         let mut w = EurocWriter::create(&dir, &cal, Some(0.11), 20.0).unwrap();
         let img = Image::from_fn(8, 6, |u, v| (u * 10 + v) as u8);
         for k in 0..3 {
@@ -792,7 +809,7 @@ mod tests {
     fn kitti_round_trip_and_refusals() {
         let dir = temp("kitti");
         let cal = calibration();
-        let mut w = KittiWriter::create(&dir, &cal, Some(0.5)).unwrap();
+        let mut w = KittiWriter::create(&dir, &cal, 0.5, true).unwrap();
         let img = Image::from_fn(8, 6, |u, v| (u + 3 * v) as u8);
         for k in 0..3 {
             w.write(2_000_000 + 100_000 * k as u64, &[&img, &img], &pose(k))
@@ -824,10 +841,11 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
         // Distortion and wrong sizes are refused.
         let mut bad = calibration();
-        bad.distortion = Some(RadTan::new(0.1, 0.0, 0.0, 0.0));
-        assert!(KittiWriter::create(temp("kitti-bad"), &bad, None).is_err());
+        bad.distortion = LensDistortion::RadTan(RadTan::new(0.1, 0.0, 0.0, 0.0));
+        assert!(KittiWriter::create(temp("kitti-bad"), &bad, 0.5, false).is_err());
+        assert!(KittiWriter::create(temp("kitti-bad"), &cal, 0.0, false).is_err());
         let dir = temp("kitti-size");
-        let mut w = KittiWriter::create(&dir, &cal, None).unwrap();
+        let mut w = KittiWriter::create(&dir, &cal, 0.5, false).unwrap();
         assert!(w.write(0, &[&Image::<u8>::new(4, 4)], &pose(0)).is_err());
         assert!(w.write(0, &[&img, &img], &pose(0)).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
