@@ -16,7 +16,7 @@ REPEATS=${2:-3}
 LOCK=/work/.release-build.lock
 OUT=out/bench-render
 mkdir -p "$OUT"
-flock "$LOCK" cargo build --release -p dwslam >/dev/null
+flock "$LOCK" cargo build --release -p dwslam >/dev/null 2>&1
 BIN=target/release/dwslam
 TMP=$(mktemp -d)
 trap 'rm -rf "$TMP"' EXIT

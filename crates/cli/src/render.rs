@@ -121,27 +121,9 @@ fn frontend(
     img: &vision::image::GrayImage,
     previous: Option<&(vision::pyramid::Pyramid, Vec<[f32; 2]>)>,
 ) -> Result<(vision::pyramid::Pyramid, Vec<[f32; 2]>)> {
-    use vision::quadtree::{QuadPoint, QuadTree};
     let params = vision::lk::LkParams::default();
     let pyramid = vision::pyramid::Pyramid::new(img, params.levels, 8).context("pyramid")?;
-    let corners = vision::fast::fast9(
-        &pyramid.levels[0],
-        sim::render::quality::FAST_THRESHOLD,
-        true,
-    );
-    let scored = vision::fast::with_shi_tomasi(img, &corners, 3);
-    let points: Vec<QuadPoint> = scored
-        .iter()
-        .enumerate()
-        .map(|(i, c)| QuadPoint {
-            u: c.u,
-            v: c.v,
-            score: c.score,
-            index: i,
-        })
-        .collect();
-    let chosen = QuadTree::from_points(img.width() as f32, img.height() as f32, 8.0, &points)
-        .select(sim::render::quality::SELECTED, 0);
+    let (_, chosen) = sim::render::quality::select_features(&pyramid.levels[0]);
     if let Some((prev, features)) = previous {
         let _ = vision::lk::track(prev, &pyramid, features, None, &params);
     }

@@ -25,6 +25,27 @@ pub const MIN_CELL: f32 = 8.0;
 /// one feature per non-empty cell after 64 picks).
 pub const COVERAGE_DEPTH: u32 = 3;
 
+/// The front-end's feature selection on `img`: FAST-9 corners (non-maximum suppressed) at
+/// [`FAST_THRESHOLD`] on the full image, scored by Shi-Tomasi (3 × 3 window radius), spread by
+/// the quadtree's equi-distributed traversal (thesis Alg. 2, cells ≥ [`MIN_CELL`]) to
+/// [`SELECTED`] features. Returns the number of FAST corners and the selection.
+pub fn select_features(img: &GrayImage) -> (usize, Vec<QuadPoint>) {
+    let corners = fast9(img, FAST_THRESHOLD, true);
+    let scored = with_shi_tomasi(img, &corners, 3);
+    let points: Vec<QuadPoint> = scored
+        .iter()
+        .enumerate()
+        .map(|(i, c)| QuadPoint {
+            u: c.u,
+            v: c.v,
+            score: c.score,
+            index: i,
+        })
+        .collect();
+    let tree = QuadTree::from_points(img.width() as f32, img.height() as f32, MIN_CELL, &points);
+    (corners.len(), tree.select(SELECTED, 0))
+}
+
 /// Trackability of one frame pair.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PairQuality {
@@ -52,21 +73,8 @@ pub fn pair_quality(
     a: &GrayImage,
     b: &GrayImage,
 ) -> PairQuality {
-    let corners = fast9(a, FAST_THRESHOLD, true);
-    let scored = with_shi_tomasi(a, &corners, 3);
-    let points: Vec<QuadPoint> = scored
-        .iter()
-        .enumerate()
-        .map(|(i, c)| QuadPoint {
-            u: c.u,
-            v: c.v,
-            score: c.score,
-            index: i,
-        })
-        .collect();
+    let (corners, chosen) = select_features(a);
     let (w, h) = (a.width() as f32, a.height() as f32);
-    let tree = QuadTree::from_points(w, h, MIN_CELL, &points);
-    let chosen = tree.select(SELECTED, 0);
     let cells = 1usize << COVERAGE_DEPTH;
     let mut covered = vec![false; cells * cells];
     for q in &chosen {
@@ -117,7 +125,7 @@ pub fn pair_quality(
         errors[errors.len() / 2]
     };
     PairQuality {
-        corners: corners.len(),
+        corners,
         coverage,
         tracked: errors.len(),
         lk_median_error,

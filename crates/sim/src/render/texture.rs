@@ -531,8 +531,6 @@ fn books(v: f64, s: f64, t: f64, texel: f64, seed: u64, height: f64, back: f64) 
         let c = inside * rect_aa(s, t, x0 + 0.006, l0, x1 - 0.006, l1, texel);
         value = blend(value, label, c);
     }
-    // Gaps between books are dark.
-    let _ = v;
     value
 }
 
