@@ -11,6 +11,7 @@ mod experiment;
 mod inspect;
 mod pgo;
 mod plot;
+mod render;
 mod run;
 mod vocabulary;
 
@@ -41,6 +42,8 @@ enum Command {
     Run(run::RunArgs),
     /// Train the bag-of-words vocabulary of place recognition (DBoW2 YAML).
     Vocabulary(vocabulary::VocabularyArgs),
+    /// Render an image sequence with exact ground truth (TUM, EuRoC or KITTI layout).
+    Render(render::RenderArgs),
     /// The demo: double window optimisation on the simulated monocular double loop (thesis
     /// Figures 6.11–6.12) with cDWO and gDWO; plots and summary.json written to dwslam-demo/.
     Demo,
@@ -67,6 +70,7 @@ fn run(command: Command) -> Result<()> {
         Command::Inspect(cmd) => inspect::run(cmd),
         Command::Run(args) => run::run(args),
         Command::Vocabulary(args) => vocabulary::run(args),
+        Command::Render(args) => render::run(args),
         Command::Demo => experiment::dwo::run(experiment::dwo::DwoArgs::demo()),
     }
 }

@@ -13,6 +13,7 @@
 //!   ahead on their own thread, undistorted and rectified, with ground truth;
 //! * [`output`]: what a run writes (every frame's pose and tracking state, keyframes, map
 //!   points as PLY, `summary.json`);
+//! * [`dataset_writer`]: writers of the TUM RGB-D, EuRoC MAV and KITTI odometry layouts;
 //! * [`eval`]: absolute trajectory error (after SE(3) or Sim(3) alignment, thesis eq.
 //!   5.11–5.14) and relative pose error.
 //!
@@ -24,6 +25,7 @@
 pub mod bal;
 pub mod camera;
 pub mod camera_file;
+pub mod dataset_writer;
 mod error;
 pub mod eval;
 pub mod g2o;

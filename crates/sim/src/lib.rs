@@ -6,6 +6,7 @@
 pub mod ba_scene;
 pub mod dwo;
 pub mod preliminary;
+pub mod render;
 pub mod scale_drift;
 pub mod sensor;
 pub mod trajectory;
