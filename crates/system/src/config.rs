@@ -1,6 +1,7 @@
 //! The live system's parameters: every threshold with a default chosen from a principle (the
 //! reason is written beside it), all overridable in a YAML config file (`dwslam run --config`).
 
+use geom::PinholeCamera;
 use serde::Deserialize;
 use std::path::Path;
 
@@ -56,7 +57,7 @@ pub struct SystemConfig {
     pub loops: LoopConfig,
     /// The dense model of `dwslam run --dense-ply` (thesis §6.5.3; its `depth_noise` is the
     /// system's).
-    pub dense: crate::dense_model::DenseModelConfig,
+    pub dense: DenseModelConfig,
 }
 
 /// Large-scale loop closure (thesis §6.4.2; [`crate::loops`]).
@@ -117,7 +118,7 @@ impl SystemConfig {
         self.depth_noise.unwrap_or(if stereo {
             0.5 / (camera.pinhole.fx * camera.baseline)
         } else {
-            crate::dense_model::KINECT_DEPTH_NOISE
+            KINECT_DEPTH_NOISE
         })
     }
 }
@@ -398,6 +399,104 @@ impl SystemConfig {
             return bad("stereo.max_disparity must be at least 1".into());
         }
         Ok(())
+    }
+}
+
+// The dense model's parameters live here with the others (`crate::dense_model` uses them);
+// see that module for the fusion they control.
+
+/// The depth noise of a Kinect-class structured-light sensor, `σ_z = c·z²` with
+/// `c = 1.425·10⁻³ /m` (Khoshelham & Elberink 2012; 5.7 mm at 2 m).
+pub const KINECT_DEPTH_NOISE: f64 = 1.425e-3;
+
+/// The typical range of an indoor RGB-D recording, metres (7-Scenes and TUM RGB-D scenes lie at
+/// 1–3 m).
+pub const TYPICAL_DEPTH: f64 = 2.0;
+
+/// Parameters of the fusion (serde: the live system's YAML config overrides them).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DenseModelConfig {
+    /// Edge length of a voxel, metres. Default `3·σ_z` at the typical depth
+    /// (3 × 5.7 mm = 1.7 cm for a Kinect at 2 m): a surface's samples, spread by `±σ_z` along
+    /// its normal, then fall into one layer of voxels (a thinner voxel makes a surface several
+    /// layers thick, a thicker one blurs detail the sensor resolves).
+    pub voxel_size: f64,
+    /// Voxels seen from fewer keyframes are discarded (2: the least agreement between
+    /// independent views that tells a surface from a one-frame outlier).
+    pub min_views: usize,
+    /// Pixel stride of the samples; `None`: the stride at which samples at the typical depth
+    /// lie half a voxel apart (`⌊f·voxel/(2·z)⌋`, 2 px for a Kinect): every voxel a surface
+    /// crosses gets samples, no more than needed.
+    pub stride: Option<usize>,
+    /// Depth noise coefficient `c` of `σ_z = c·z²`, 1/m ([`KINECT_DEPTH_NOISE`]; a stereo
+    /// camera: `σ_d/(f·b)`). Not read from the live system's config file: [`crate::dense_model::fuse`] takes the
+    /// system's (`SystemConfig::depth_noise`).
+    #[serde(skip)]
+    pub depth_noise: f64,
+    /// Farthest depth used, metres; `None`: where the noise reaches the voxel size,
+    /// `√(voxel/c)` (3.5 m for the defaults): farther samples scatter over several voxels.
+    pub max_depth: Option<f64>,
+    /// A sample is dropped if its 3×3 neighbourhood's depths spread more than this relative
+    /// amount (0.05: a depth edge, where pixels mix both sides; see
+    /// `crate::frame::depth_off_edges`).
+    pub depth_edge_ratio: f64,
+}
+
+impl Default for DenseModelConfig {
+    fn default() -> Self {
+        DenseModelConfig {
+            voxel_size: 3.0 * KINECT_DEPTH_NOISE * TYPICAL_DEPTH * TYPICAL_DEPTH,
+            min_views: 2,
+            stride: None,
+            depth_noise: KINECT_DEPTH_NOISE,
+            max_depth: None,
+            depth_edge_ratio: 0.05,
+        }
+    }
+}
+
+/// A configuration value out of range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("dense model config: {0}")]
+pub struct DenseModelError(pub String);
+
+impl DenseModelConfig {
+    /// Checks the ranges; the message names the field.
+    pub fn validate(&self) -> Result<(), DenseModelError> {
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        if !positive(self.voxel_size) {
+            return Err(DenseModelError("voxel_size must be positive".into()));
+        }
+        if self.min_views == 0 {
+            return Err(DenseModelError("min_views must be at least 1".into()));
+        }
+        if self.stride == Some(0) {
+            return Err(DenseModelError("stride must be at least 1".into()));
+        }
+        if !positive(self.depth_noise) || !positive(self.depth_edge_ratio) {
+            return Err(DenseModelError(
+                "depth_noise and depth_edge_ratio must be positive".into(),
+            ));
+        }
+        if self.max_depth.is_some_and(|d| !positive(d)) {
+            return Err(DenseModelError("max_depth must be positive".into()));
+        }
+        Ok(())
+    }
+
+    /// The stride for a camera (see [`DenseModelConfig::stride`]).
+    pub fn stride_for(&self, camera: &PinholeCamera) -> usize {
+        self.stride.unwrap_or_else(|| {
+            let f = 0.5 * (camera.fx + camera.fy);
+            ((f * self.voxel_size / (2.0 * TYPICAL_DEPTH)).floor() as usize).max(1)
+        })
+    }
+
+    /// The farthest depth used (see [`DenseModelConfig::max_depth`]).
+    pub fn max_depth(&self) -> f64 {
+        self.max_depth
+            .unwrap_or_else(|| (self.voxel_size / self.depth_noise).sqrt())
     }
 }
 
