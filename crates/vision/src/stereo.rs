@@ -134,37 +134,32 @@ unsafe fn stream_avx2(left: &GrayImage, right: &GrayImage, params: &StereoParams
 /// [`census_transform`]'s packed words (the same bits, placed differently), which lets the
 /// AVX2 kernel build a word from two byte-compare masks.
 #[inline(always)]
-fn census_spread<const AVX2: bool>(img: &GrayImage, radius: usize, out: &mut Vec<u64>) {
+fn census_spread_row<const AVX2: bool>(img: &GrayImage, radius: usize, v: usize, o: &mut [u64]) {
     let (w, h) = (img.width(), img.height());
     let c = radius.min(3);
-    out.clear();
-    out.resize(w * h, 0);
     // Interior rows and columns with an 8-byte load per window row (x − 3 … x + 4) for c = 3.
     let simd_ok = AVX2 && c == 3 && w >= 8 && h >= 7;
-    for v in 0..h {
-        let o = &mut out[v * w..(v + 1) * w];
-        let interior_row = v >= 3 && v + 3 < h;
-        let (x0, x1) = if simd_ok && interior_row {
-            (3, w - 4)
-        } else {
-            (0, 0)
-        };
-        #[cfg(target_arch = "x86_64")]
-        if x1 > x0 {
-            // SAFETY: AVX2 instances run after `simd::avx2()`; rows v − 3 … v + 3 exist and
-            // columns x − 3 … x + 4 lie in 0..w for x in 3..w − 4.
-            unsafe { census_row_avx2(img, v, x0, x1, o) };
+    let interior_row = v >= 3 && v + 3 < h;
+    let (x0, x1) = if simd_ok && interior_row {
+        (3, w - 4)
+    } else {
+        (0, 0)
+    };
+    #[cfg(target_arch = "x86_64")]
+    if x1 > x0 {
+        // SAFETY: AVX2 instances run after `simd::avx2()`; rows v − 3 … v + 3 exist and
+        // columns x − 3 … x + 4 lie in 0..w for x in 3..w − 4.
+        unsafe { census_row_avx2(img, v, x0, x1, o) };
+    }
+    for (x, word) in o.iter_mut().enumerate() {
+        if x >= x0 && x < x1 {
+            continue;
         }
-        for (x, word) in o.iter_mut().enumerate() {
-            if x >= x0 && x < x1 {
-                continue;
-            }
-            *word = census_spread_pixel(img, x, v, c);
-        }
+        *word = census_spread_pixel(img, x, v, c);
     }
 }
 
-/// The scalar reference of one [`census_spread`] word.
+/// The scalar reference of one [`census_spread_row`] word.
 #[inline(always)]
 fn census_spread_pixel(img: &GrayImage, u: usize, v: usize, c: usize) -> u64 {
     let (w, h) = (img.width() as i64, img.height() as i64);
@@ -310,9 +305,9 @@ fn stream<const AVX2: bool>(
     // (Disparities fit the low 16 bits of the packed minima of `decide_row`.)
     let nd = params.max_disparity.min(w - 1).min(u16::MAX as usize) + 1;
     let row_len = w * nd;
-    let (mut cl, mut cr) = (Vec::new(), Vec::new());
-    census_spread::<AVX2>(left, params.census_radius, &mut cl);
-    census_spread::<AVX2>(right, params.census_radius, &mut cr);
+    // Census rows are made when their cost row is (one row of each image at a time: whole
+    // census images cost page faults on every call).
+    let (mut cl, mut cr) = (vec![0u64; w], vec![0u64; w]);
     // Ring of pixel-cost rows (row y in slot y mod (2r + 2)).
     let cost_slots = 2 * br + 2;
     let mut costs = vec![0u8; cost_slots * row_len];
@@ -321,13 +316,14 @@ fn stream<const AVX2: bool>(
     let mut ensure = |y: usize, costs: &mut Vec<u8>| {
         while computed <= y {
             let yy = computed;
-            let rrow = &cr[yy * w..(yy + 1) * w];
+            census_spread_row::<AVX2>(left, params.census_radius, yy, &mut cl);
+            census_spread_row::<AVX2>(right, params.census_radius, yy, &mut cr);
             for (j, r) in rev[..w].iter_mut().enumerate() {
-                *r = rrow[w - 1 - j];
+                *r = cr[w - 1 - j];
             }
             let slot = yy % cost_slots;
             cost_row::<AVX2>(
-                &cl[yy * w..(yy + 1) * w],
+                &cl,
                 &rev,
                 nd,
                 &mut costs[slot * row_len..(slot + 1) * row_len],
@@ -1027,12 +1023,20 @@ mod tests {
         // The two census layouts have the same Hamming distances.
         let img = random_texture(30, 20, 9);
         let packed = census_transform(&img, 3);
-        let mut spread = Vec::new();
-        census_spread::<false>(&img, 3, &mut spread);
-        let mut fast = Vec::new();
+        let whole = |avx2: bool| {
+            let mut out = vec![0u64; img.width() * img.height()];
+            for (v, row) in out.chunks_exact_mut(img.width()).enumerate() {
+                if avx2 {
+                    census_spread_row::<true>(&img, 3, v, row);
+                } else {
+                    census_spread_row::<false>(&img, 3, v, row);
+                }
+            }
+            out
+        };
+        let spread = whole(false);
         if crate::simd::avx2() {
-            census_spread::<true>(&img, 3, &mut fast);
-            assert_eq!(fast, spread);
+            assert_eq!(whole(true), spread);
         }
         for i in 0..spread.len() {
             assert_eq!(spread[i].count_ones(), packed.data()[i].count_ones());
