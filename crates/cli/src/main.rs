@@ -12,6 +12,7 @@ mod inspect;
 mod pgo;
 mod plot;
 mod run;
+mod vocabulary;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).
 #[derive(Parser, Debug)]
@@ -38,6 +39,8 @@ enum Command {
     /// The live SLAM system on a recorded stereo or RGB-D sequence: every frame's pose, the
     /// keyframes and the map, with a report (and ATE/RPE when the sequence has ground truth).
     Run(run::RunArgs),
+    /// Train the bag-of-words vocabulary of place recognition (DBoW2 YAML).
+    Vocabulary(vocabulary::VocabularyArgs),
     /// The demo: double window optimisation on the simulated monocular double loop (thesis
     /// Figures 6.11–6.12) with cDWO and gDWO; plots and summary.json written to dwslam-demo/.
     Demo,
@@ -63,6 +66,7 @@ fn run(command: Command) -> Result<()> {
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),
         Command::Run(args) => run::run(args),
+        Command::Vocabulary(args) => vocabulary::run(args),
         Command::Demo => experiment::dwo::run(experiment::dwo::DwoArgs::demo()),
     }
 }

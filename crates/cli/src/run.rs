@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 use system::config::SystemConfig;
 use system::live::{LiveSystem, Mode, RunResult};
+use system::place_recognition::{VocabularyOrigin, load_vocabulary};
 
 /// Options of `dwslam run`.
 #[derive(Args, Debug, Clone)]
@@ -61,6 +62,10 @@ pub struct RunArgs {
     /// Also write the trajectory in KITTI format.
     #[arg(long)]
     pub kitti: bool,
+    /// Also fuse the optimised keyframes' depth into one coloured, voxel-filtered point cloud,
+    /// `dense.ply` (thesis §6.5.3; `dense` in --config sets the voxel size).
+    #[arg(long)]
+    pub dense_ply: bool,
     /// No progress bar (for logs).
     #[arg(long)]
     pub quiet: bool,
@@ -68,6 +73,9 @@ pub struct RunArgs {
 
 /// Per frame: the tracker's counts and times (CSV).
 pub const FRAME_STATS_FILE: &str = "frames.csv";
+
+/// The dense model of `--dense-ply`.
+pub const DENSE_FILE: &str = "dense.ply";
 
 /// The trajectory file of the poses after the run's final optimisation.
 pub const FINAL_TRAJECTORY_FILE: &str = "trajectory_final.tum";
@@ -90,7 +98,6 @@ pub fn run(args: RunArgs) -> Result<()> {
         args.max_frames != Some(0),
         "--max-frames must be at least 1"
     );
-    args::output_dir(&args.out, "--out")?;
     let options = OpenOptions {
         format: args
             .format
@@ -121,6 +128,8 @@ pub fn run(args: RunArgs) -> Result<()> {
             args.path.display()
         ),
     };
+    // The output folder is made only once the input is known to be runnable.
+    args::output_dir(&args.out, "--out")?;
     let mode = if args.deterministic {
         Mode::Deterministic
     } else {
@@ -164,7 +173,36 @@ pub fn run(args: RunArgs) -> Result<()> {
         });
     }
     let name = args.path.display().to_string();
+    let loops = config.loops.clone();
+    let dense_config = {
+        let (camera, stereo) = match &sensor {
+            SensorModel::Stereo(s) => (*s, true),
+            SensorModel::Rgbd(r) => (r.stereo, false),
+            SensorModel::Mono(_) => unreachable!("refused above"),
+        };
+        let mut dense = config.dense.clone();
+        dense.depth_noise = config.depth_noise_for(&camera, stereo);
+        (camera.pinhole, dense)
+    };
     let mut system = LiveSystem::new(&sensor, config, mode, &name)?;
+    if loops.enabled {
+        let orb = loops.place_recognition.orb.params();
+        let root = data::paths::dataset_root();
+        let voc = load_vocabulary(loops.vocabulary.as_deref(), root.as_deref(), &orb)
+            .context("the vocabulary of appearance-based loop closure (loops.vocabulary in --config; loops.enabled: false runs without)")?;
+        println!(
+            "  loop closure: vocabulary of {} words, {}",
+            voc.vocabulary.num_words(),
+            match &voc.origin {
+                VocabularyOrigin::File(p) => format!("from {}", p.display()),
+                VocabularyOrigin::Shipped => "the shipped default".into(),
+                VocabularyOrigin::Cache(p) => format!("cached in {}", p.display()),
+                VocabularyOrigin::Trained { seconds, .. } =>
+                    format!("trained in {seconds:.1} s on the default training images"),
+            }
+        );
+        system = system.with_loop_closure(voc.vocabulary)?;
+    }
     let bar = if args.quiet {
         ProgressBar::hidden()
     } else {
@@ -225,6 +263,9 @@ pub fn run(args: RunArgs) -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
     let result = system.finish(interrupted)?;
     let processed = result.record.frames.len();
+    for w in &result.warnings {
+        println!("warning: {w}");
+    }
     println!(
         "{processed} frames in {seconds:.1} s ({:.1} frames per second), {} keyframes, {} points, {} loop closures{}",
         processed as f64 / seconds.max(1e-9),
@@ -296,6 +337,25 @@ pub fn run(args: RunArgs) -> Result<()> {
         }
     }
     write_frame_stats(&args.out.join(FRAME_STATS_FILE), &result)?;
+    if args.dense_ply {
+        let (camera, config) = &dense_config;
+        let t = Instant::now();
+        let model = system::dense_model::fuse(&result.graph, &result.keyframes, camera, config)?;
+        let path = args.out.join(DENSE_FILE);
+        let file =
+            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+        model
+            .write_ply(std::io::BufWriter::new(file))
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "dense model: {} points from {} keyframes ({:.1} cm voxels, seen from ≥ {}) in {:.1} s",
+            model.points().len(),
+            model.views(),
+            config.voxel_size * 100.0,
+            config.min_views,
+            t.elapsed().as_secs_f64()
+        );
+    }
     report(&args.out, &result, ground_truth)?;
     println!("wrote {}", args.out.display());
     match failure {

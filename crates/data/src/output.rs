@@ -146,6 +146,16 @@ impl StageTimings {
         }
     }
 
+    /// Adds every call recorded in `other` (e.g. by another thread).
+    pub fn extend(&mut self, other: &StageTimings) {
+        for (stage, ms) in &other.stages {
+            match self.stages.iter_mut().find(|(s, _)| s == stage) {
+                Some((_, v)) => v.extend_from_slice(ms),
+                None => self.stages.push((stage.clone(), ms.clone())),
+            }
+        }
+    }
+
     /// Per-stage statistics.
     pub fn summary(&self) -> Vec<StageTiming> {
         self.stages

@@ -1,12 +1,13 @@
 //! The live front-end's side of the keyframe pipeline (`slam::mapping::FrontEnd`): data
 //! association from images for a new keyframe — its tracked matches and pose, the guided search
 //! of metric loop closure (thesis §6.4.1: a 10-pixel radius), the new points where the quadtree
-//! finds room (§3.4.3, §6.3), and the place recogniser's loop, when there is one.
+//! finds room (§3.4.3, §6.3). Appearance-based loops are not closed here but by the loop
+//! closer ([`crate::loops`]), in its own thread (§6.5.2).
 
 use crate::frame::{FrameData, SensorFrontEnd};
 use crate::keyframes::{KeyframeImages, KeyframeStore};
-use crate::search::{SearchPoint, SearchScratch, search};
-use lie::Sim3;
+use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
+use lie::{Se3, Sim3};
 use nalgebra::{SVector, Vector2, Vector3};
 use slam::map::{KeyframeId, PointId, SlamGraph};
 use slam::mapping::{AppearanceMatch, FrontEnd};
@@ -27,10 +28,10 @@ pub struct KeyframeAssociation<'a> {
     pub camera_from_world: Sim3,
     /// The tracked inlier matches.
     pub matches: Vec<(PointId, Vector3<f64>)>,
-    /// A loop the place recogniser found for this keyframe.
-    pub place: Option<AppearanceMatch<3>>,
     /// Guided-search radius of metric loop closure (pixels).
     pub loop_radius: f64,
+    /// The visibility test's largest viewing-angle change (radians).
+    pub max_view_angle: f64,
     /// Correlation a patch match needs.
     pub min_ncc: f32,
     /// New points per keyframe at most.
@@ -66,8 +67,8 @@ impl<'a> KeyframeAssociation<'a> {
             sensor,
             camera_from_world,
             matches,
-            place: None,
             loop_radius: config.mapping.loop_search_radius,
+            max_view_angle: config.tracker.max_view_angle_deg.to_radians(),
             min_ncc: config.tracker.min_ncc,
             max_new_points: config.keyframes.max_new_points,
             spacing: config.keyframes.new_point_spacing,
@@ -84,9 +85,85 @@ impl<'a> KeyframeAssociation<'a> {
     }
 
     fn stereo_measurement(&self, u: Vector2<f64>) -> Option<Vector3<f64>> {
-        let d = self.frame.depth_at(u.x, u.y)?;
-        let z = self.sensor.measurement(u.x, u.y, d);
-        (z.x - z.z >= self.min_disparity).then_some(z)
+        stereo_measurement(self.frame, self.sensor, u, self.min_disparity)
+    }
+}
+
+/// The stereo measurement of a pixel of `frame` where its depth is known off depth edges and
+/// gives at least `min_disparity` pixels of disparity.
+fn stereo_measurement(
+    frame: &FrameData,
+    sensor: &SensorFrontEnd,
+    u: Vector2<f64>,
+    min_disparity: f64,
+) -> Option<Vector3<f64>> {
+    let d = frame.depth_at(u.x, u.y)?;
+    let z = sensor.measurement(u.x, u.y, d);
+    (z.x - z.z >= min_disparity).then_some(z)
+}
+
+/// The guided search of map points in a keyframe's frame at a predicted pose: metric loop
+/// closure's (thesis §6.4.1, the keyframe's tracked pose) and the guided matching of an
+/// appearance loop (§6.4.2, the pose the loop implies). Each point that projects inside the
+/// image and passes PTAM's viewing-angle test is searched within `radius` pixels
+/// ([`search`]); a match with a depth becomes a stereo measurement.
+pub struct GuidedSearch<'a> {
+    /// The frame searched.
+    pub frame: &'a FrameData,
+    /// The keyframes' images (the templates come from the points' anchors).
+    pub store: &'a KeyframeStore,
+    /// The sensor.
+    pub sensor: &'a SensorFrontEnd,
+    /// Search radius (pixels).
+    pub radius: f64,
+    /// Correlation a patch match needs.
+    pub min_ncc: f32,
+    /// The visibility test's largest viewing-angle change (radians).
+    pub max_view_angle: f64,
+    /// Smallest disparity of a measurement (pixels).
+    pub min_disparity: f64,
+}
+
+impl GuidedSearch<'_> {
+    /// Searches `points` of `graph` with the frame at `camera_from_world`; returns the found
+    /// points' measurements.
+    pub fn run(
+        &self,
+        graph: &SlamGraph<3>,
+        camera_from_world: &Se3,
+        points: impl IntoIterator<Item = PointId>,
+        scratch: &mut SearchScratch,
+    ) -> Vec<(PointId, Vector3<f64>)> {
+        let camera = *self.sensor.pinhole();
+        let (w, h) = (self.frame.gray().width(), self.frame.gray().height());
+        let mut found = Vec::new();
+        for p in points {
+            let Some(point) = SearchPoint::from_graph(graph, p) else {
+                continue;
+            };
+            let visible = predict(&camera, camera_from_world, &point, w, h, 6.0).is_some()
+                && view_angle(camera_from_world, &point) < self.max_view_angle;
+            let Some(anchor) = self.store.get(point.anchor).filter(|_| visible) else {
+                continue;
+            };
+            let Some(u) = search(
+                &camera,
+                camera_from_world,
+                &point,
+                anchor,
+                self.frame.gray(),
+                &self.frame.corners,
+                self.radius,
+                self.min_ncc,
+                scratch,
+            ) else {
+                continue;
+            };
+            if let Some(z) = stereo_measurement(self.frame, self.sensor, u, self.min_disparity) {
+                found.push((p, z));
+            }
+        }
+        found
     }
 }
 
@@ -107,8 +184,10 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
         Some(self.camera_from_world)
     }
 
+    /// None: the loop closer ([`crate::loops`]) recognises places in its own thread and
+    /// closes their loops through the same `Mapper::close_appearance_loop`.
     fn recognise_place(&mut self, _: &SlamGraph<3>, _: KeyframeId) -> Option<AppearanceMatch<3>> {
-        self.place.take()
+        None
     }
 
     fn guided_search(
@@ -120,34 +199,22 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
         let Ok(pose) = graph.pose(keyframe) else {
             return Vec::new();
         };
-        let pose = pose.rigid_part();
-        let camera = *self.sensor.pinhole();
-        let mut found = Vec::new();
-        for (p, _) in predictions {
-            let Some(point) = SearchPoint::from_graph(graph, *p) else {
-                continue;
-            };
-            let Some(anchor) = self.store.get(point.anchor) else {
-                continue;
-            };
-            let Some(u) = search(
-                &camera,
-                &pose,
-                &point,
-                anchor,
-                self.frame.gray(),
-                &self.frame.corners,
-                self.loop_radius,
-                self.min_ncc,
-                &mut self.scratch,
-            ) else {
-                continue;
-            };
-            if let Some(z) = self.stereo_measurement(u) {
-                found.push((*p, z));
-            }
+        // Every candidate of N2 \ N1 (thesis §6.4.1) that passes PTAM's visibility test.
+        GuidedSearch {
+            frame: self.frame,
+            store: self.store,
+            sensor: self.sensor,
+            radius: self.loop_radius,
+            min_ncc: self.min_ncc,
+            max_view_angle: self.max_view_angle,
+            min_disparity: self.min_disparity,
         }
-        found
+        .run(
+            graph,
+            &pose.rigid_part(),
+            predictions.iter().map(|(p, _)| *p),
+            &mut self.scratch,
+        )
     }
 
     fn measurements(

@@ -47,6 +47,51 @@ pub struct SystemConfig {
     pub optimiser: OptimiserConfig,
     /// Stereo block matching (stereo sensors).
     pub stereo: StereoConfig,
+    /// Depth noise coefficient `c` of `σ_z = c·z²` (1/m): place recognition's 3D inlier gate
+    /// and the dense model's depth range. `None`: from the sensor — for a depth camera the
+    /// Kinect's measured `1.425·10⁻³` (Khoshelham & Elberink 2012: 5.7 mm at 2 m), for stereo
+    /// `σ_d/(f·b)` with a disparity noise of σ_d = 0.5 px (sub-pixel block matching).
+    pub depth_noise: Option<f64>,
+    /// Large-scale loop closure by appearance (thesis §6.4.2).
+    pub loops: LoopConfig,
+    /// The dense model of `dwslam run --dense-ply` (thesis §6.5.3; its `depth_noise` is the
+    /// system's).
+    pub dense: crate::dense_model::DenseModelConfig,
+}
+
+/// Large-scale loop closure (thesis §6.4.2; [`crate::loops`]).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LoopConfig {
+    /// Close loops by appearance (true).
+    pub enabled: bool,
+    /// The vocabulary, a DBoW2 YAML file of dwslam ORB words (`dwslam vocabulary`); `None`:
+    /// the default vocabulary, trained on the shared images disjoint from every test sequence
+    /// and cached (`system::place_recognition::vocabulary`).
+    pub vocabulary: Option<std::path::PathBuf>,
+    /// Keyframes within this many edges of the keyframe graph are topologically close and
+    /// never joined by an appearance loop (2: the keyframes sharing Θ points with the new one
+    /// and theirs — local registration and metric loop closure already join those).
+    pub exclusion_hops: usize,
+    /// Keyframes waiting for the loop closer at most (16: detection takes ~20 ms, keyframes
+    /// come a few per second, so the queue only fills if the loop thread stalls for seconds;
+    /// a keyframe that finds it full is not entered into the database, and the run reports
+    /// how many).
+    pub queue: usize,
+    /// Place recognition's thresholds (its `depth_noise` is the system's).
+    pub place_recognition: crate::place_recognition::PlaceRecognitionConfig,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        LoopConfig {
+            enabled: true,
+            vocabulary: None,
+            exclusion_hops: 2,
+            queue: 16,
+            place_recognition: Default::default(),
+        }
+    }
 }
 
 impl Default for SystemConfig {
@@ -58,7 +103,22 @@ impl Default for SystemConfig {
             mapping: MappingConfig::default(),
             optimiser: OptimiserConfig::default(),
             stereo: StereoConfig::default(),
+            depth_noise: None,
+            loops: LoopConfig::default(),
+            dense: Default::default(),
         }
+    }
+}
+
+impl SystemConfig {
+    /// The depth noise coefficient for `camera` (see [`SystemConfig::depth_noise`]);
+    /// `stereo`: depth from block matching.
+    pub fn depth_noise_for(&self, camera: &geom::StereoCamera, stereo: bool) -> f64 {
+        self.depth_noise.unwrap_or(if stereo {
+            0.5 / (camera.pinhole.fx * camera.baseline)
+        } else {
+            crate::dense_model::KINECT_DEPTH_NOISE
+        })
     }
 }
 
@@ -210,20 +270,32 @@ impl Default for OptimiserConfig {
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct StereoConfig {
-    /// Largest disparity searched (pixels).
-    pub max_disparity: usize,
+    /// Largest disparity searched (pixels); `None`: from the camera, `f/6` rounded up to a
+    /// multiple of 16 — depths down to six baselines (KITTI's 0.54 m rig: 3.2 m, the nearest
+    /// road; EuRoC's 0.11 m: 0.7 m). Nearer points have no depth (they are tracked, not
+    /// initialised). On the KITTI snippet 64 disparities (down to 6 m) gave 9.7 cm ATE, 128
+    /// gave 6.4 cm.
+    pub max_disparity: Option<usize>,
     /// Block radius (the block is `(2r+1)²`).
     pub block_radius: usize,
 }
 
 impl Default for StereoConfig {
-    /// 64 disparities (a 0.5 m baseline at f = 700 sees down to 5.5 m; 0.11 m at f = 460 to
-    /// 0.8 m), 9×9 blocks (`vision::stereo`'s default, checked on Middlebury).
+    /// Disparities from the camera, 9×9 blocks (`vision::stereo`'s default, checked on
+    /// Middlebury).
     fn default() -> Self {
         StereoConfig {
-            max_disparity: 64,
+            max_disparity: None,
             block_radius: 4,
         }
+    }
+}
+
+impl StereoConfig {
+    /// The largest disparity searched for a camera of focal length `focal` (pixels).
+    pub fn max_disparity_for(&self, focal: f64) -> usize {
+        self.max_disparity
+            .unwrap_or_else(|| ((focal / 6.0 / 16.0).ceil() as usize).max(1) * 16)
     }
 }
 
@@ -306,7 +378,23 @@ impl SystemConfig {
         if self.mapping.theta == 0 {
             return bad("mapping.theta must be at least 1".into());
         }
-        if self.stereo.max_disparity == 0 {
+        if self
+            .depth_noise
+            .is_some_and(|c| !(c.is_finite() && c > 0.0))
+        {
+            return bad("depth_noise must be positive".into());
+        }
+        self.dense
+            .validate()
+            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        if self.loops.queue == 0 {
+            return bad("loops.queue must be at least 1".into());
+        }
+        self.loops
+            .place_recognition
+            .validate()
+            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        if self.stereo.max_disparity == Some(0) {
             return bad("stereo.max_disparity must be at least 1".into());
         }
         Ok(())

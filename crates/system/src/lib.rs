@@ -11,8 +11,11 @@
 
 pub mod association;
 pub mod config;
+pub mod dense_model;
 pub mod frame;
 pub mod keyframes;
 pub mod live;
+pub mod loops;
+pub mod place_recognition;
 pub mod search;
 pub mod tracker;

@@ -11,11 +11,17 @@
 //!   arrive while it works coalesce, it re-plans from the newest graph);
 //! - or after every keyframe in the calling thread ([`Mode::Deterministic`]): the same stages
 //!   at fixed points of the frame stream, so two runs give identical trajectories.
+//!
+//! Large-scale loop closure by appearance ([`crate::loops`], once a vocabulary is given with
+//! [`LiveSystem::with_loop_closure`]) runs likewise: in a third thread fed by a bounded queue of
+//! new keyframes, which wakes the optimisation after closing a loop; or inline after each
+//! keyframe, before its optimisation.
 
 use crate::association::KeyframeAssociation;
 use crate::config::SystemConfig;
 use crate::frame::{FrameData, FrameError, SensorFrontEnd};
 use crate::keyframes::{KeyframeReason, KeyframeStore, keyframe_reason};
+use crate::loops::{AppearanceLoop, LoopCloser, LoopJob};
 use crate::tracker::{Tracked, Tracker, TrackerStats};
 use data::camera::SensorModel;
 use data::output::{FrameRecord, KeyframeRecord, MapPoint, RunRecord, StageTimings, TrackingState};
@@ -61,6 +67,9 @@ pub enum SystemError {
     /// The configuration is invalid.
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
+    /// Place recognition could not be set up.
+    #[error(transparent)]
+    PlaceRecognition(#[from] crate::place_recognition::PlaceRecognitionError),
 }
 
 /// What happened to one frame.
@@ -112,12 +121,28 @@ pub struct RunResult {
     pub graph: SlamGraph<3>,
     /// The keyframes' images.
     pub keyframes: KeyframeStore,
+    /// What went wrong without stopping the run (an optimisation or a loop closure that
+    /// failed, keyframes the loop closer had no room for).
+    pub warnings: Vec<String>,
 }
 
 /// The double window optimisation thread.
 struct Worker {
     wake: SyncSender<()>,
     handle: JoinHandle<DoubleWindowOptimiser>,
+}
+
+/// Where large-scale loop closure runs.
+enum LoopStage {
+    /// No vocabulary was given, or loop closure is disabled.
+    Off,
+    /// After each keyframe, in the calling thread (deterministic mode).
+    Inline(Box<LoopCloser>),
+    /// In its own thread, fed by a bounded queue.
+    Thread {
+        jobs: SyncSender<LoopJob>,
+        handle: JoinHandle<LoopCloser>,
+    },
 }
 
 /// The live stereo / RGB-D SLAM system.
@@ -133,7 +158,11 @@ pub struct LiveSystem {
     optimiser: Option<DoubleWindowOptimiser>,
     worker: Option<Worker>,
     optimisations: Arc<Mutex<Vec<DwoStats>>>,
-    optimisation_errors: Arc<Mutex<Vec<String>>>,
+    background_errors: Arc<Mutex<Vec<String>>>,
+    loop_stage: LoopStage,
+    appearance_loops: Arc<Mutex<Vec<AppearanceLoop>>>,
+    /// Keyframes the loop closer's queue had no room for.
+    loop_queue_full: usize,
     next_track: TrackId,
     record: RunRecord,
     /// Per frame with a pose: `(frame position in record.frames, reference, T·T_ref⁻¹)`.
@@ -175,7 +204,7 @@ impl LiveSystem {
         params.iterations = config.optimiser.iterations;
         let graph = Arc::new(SharedGraph::new(SlamGraph::new()));
         let optimisations = Arc::new(Mutex::new(Vec::new()));
-        let optimisation_errors = Arc::new(Mutex::new(Vec::new()));
+        let background_errors = Arc::new(Mutex::new(Vec::new()));
         let optimiser = DoubleWindowOptimiser::new(params);
         let (optimiser, worker) = match mode {
             Mode::Deterministic => (Some(optimiser), None),
@@ -186,7 +215,7 @@ impl LiveSystem {
                     graph.clone(),
                     camera,
                     optimisations.clone(),
-                    optimisation_errors.clone(),
+                    background_errors.clone(),
                 )),
             ),
         };
@@ -200,7 +229,10 @@ impl LiveSystem {
             optimiser,
             worker,
             optimisations,
-            optimisation_errors,
+            background_errors,
+            loop_stage: LoopStage::Off,
+            appearance_loops: Arc::new(Mutex::new(Vec::new())),
+            loop_queue_full: 0,
             next_track: 0,
             record: RunRecord {
                 sequence: sequence.to_string(),
@@ -217,6 +249,60 @@ impl LiveSystem {
             loops: Vec::new(),
             config,
         })
+    }
+
+    /// Closes large loops by appearance with `vocabulary` (see [`crate::loops`]), unless the
+    /// configuration disables it: in its own thread in threaded mode, inline in deterministic
+    /// mode. Call before the first frame.
+    pub fn with_loop_closure(
+        mut self,
+        vocabulary: Arc<vision::bow::Vocabulary>,
+    ) -> Result<Self, SystemError> {
+        if !self.config.loops.enabled {
+            return Ok(self);
+        }
+        let closer = LoopCloser::new(
+            vocabulary,
+            self.sensor.clone(),
+            &self.config,
+            self.mapper.config().clone(),
+        )?;
+        self.loop_stage = match self.mode {
+            Mode::Deterministic => LoopStage::Inline(Box::new(closer)),
+            Mode::Threaded => {
+                let (jobs, queue) = sync_channel::<LoopJob>(self.config.loops.queue);
+                let (graph, store) = (self.graph.clone(), self.store.clone());
+                let events = self.appearance_loops.clone();
+                let errors = self.background_errors.clone();
+                let wake = self.worker.as_ref().map(|w| w.wake.clone());
+                let mut closer = closer;
+                let handle = std::thread::Builder::new()
+                    .name("loop closure".into())
+                    .spawn(move || {
+                        while let Ok(job) = queue.recv() {
+                            match closer.process(&graph, &store, &job) {
+                                Ok(Some(event)) => {
+                                    events.lock().unwrap_or_else(|e| e.into_inner()).push(event);
+                                    // The optimisation corrects the poses; a pending wake-up
+                                    // will see the loop too.
+                                    if let Some(wake) = &wake {
+                                        let _ = wake.try_send(());
+                                    }
+                                }
+                                Ok(None) => {}
+                                Err(e) => errors
+                                    .lock()
+                                    .unwrap_or_else(|e| e.into_inner())
+                                    .push(format!("loop closure at {}: {e}", job.keyframe)),
+                            }
+                        }
+                        closer
+                    })
+                    .expect("a thread can be spawned");
+                LoopStage::Thread { jobs, handle }
+            }
+        };
+        Ok(self)
     }
 
     /// The shared graph (for viewers; hold its lock briefly).
@@ -334,6 +420,14 @@ impl LiveSystem {
             stats,
             ..
         } = tracked;
+        // Revisits reuse the map (thesis §6.5.2): the keyframe that sees most of what this frame
+        // tracked becomes the reference when it is at least as near as the current one, so a
+        // camera browsing a mapped place tracks against its keyframes instead of adding new ones.
+        let reference = if matches!(state, TrackingState::Lost(_)) {
+            reference
+        } else {
+            self.reuse_reference(reference, &camera_from_world, &matches)
+        };
         let reason = if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_)) {
             let g = self.graph.read();
             keyframe_reason(
@@ -372,6 +466,43 @@ impl LiveSystem {
             time: Duration::ZERO,
             time_tracking,
         })
+    }
+
+    /// The keyframe to track the next frame against: of the keyframes observing this frame's
+    /// matched points, the one observing most of them, if it is no farther from the camera than
+    /// the current reference (else the current reference). Made the graph's reference.
+    fn reuse_reference(
+        &mut self,
+        reference: KeyframeId,
+        camera_from_world: &Sim3,
+        matches: &[(slam::map::PointId, nalgebra::Vector3<f64>)],
+    ) -> KeyframeId {
+        let best = {
+            let g = self.graph.read();
+            let mut seen: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
+            for (p, _) in matches {
+                if let Some(pt) = g.point(*p) {
+                    for &o in pt.observers() {
+                        *seen.entry(o).or_default() += 1;
+                    }
+                }
+            }
+            let centre = |t: &Sim3| t.inverse().act(&nalgebra::Vector3::zeros());
+            let here = centre(camera_from_world);
+            let distance = |k: KeyframeId| {
+                g.pose(k)
+                    .map_or(f64::INFINITY, |t| (centre(&t) - here).norm())
+            };
+            let own = seen.get(&reference).copied().unwrap_or(0);
+            seen.into_iter()
+                .filter(|&(k, n)| k != reference && n > own && distance(k) <= distance(reference))
+                .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+                .map(|(k, _)| k)
+        };
+        match best {
+            Some(k) if self.graph.write().set_reference(k).is_ok() => k,
+            _ => reference,
+        }
     }
 
     /// Records a frame's pose and state; `reference` is the keyframe its pose is kept relative
@@ -443,8 +574,38 @@ impl LiveSystem {
         if let Some(old) = report.appearance_loop {
             self.loop_event(keyframe, old, "appearance");
         }
+        self.close_large_loop(keyframe, frame);
         self.optimise()?;
         Ok(keyframe)
+    }
+
+    /// Hands a new keyframe to the loop closer: closes its loop now (inline) or queues it.
+    fn close_large_loop(&mut self, keyframe: KeyframeId, frame: &Arc<FrameData>) {
+        let job = LoopJob {
+            keyframe,
+            frame: frame.clone(),
+        };
+        match &mut self.loop_stage {
+            LoopStage::Off => {}
+            LoopStage::Inline(closer) => match closer.process(&self.graph, &self.store, &job) {
+                Ok(Some(event)) => self
+                    .appearance_loops
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push(event),
+                Ok(None) => {}
+                Err(e) => self
+                    .background_errors
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push(format!("loop closure at {keyframe}: {e}")),
+            },
+            LoopStage::Thread { jobs, .. } => match jobs.try_send(job) {
+                Ok(()) => {}
+                Err(TrySendError::Full(_)) => self.loop_queue_full += 1,
+                Err(TrySendError::Disconnected(_)) => {}
+            },
+        }
     }
 
     fn loop_event(&mut self, keyframe: KeyframeId, old: KeyframeId, kind: &'static str) {
@@ -487,6 +648,31 @@ impl LiveSystem {
     /// Ends the run: stops the optimisation thread, runs a last optimisation, and collects the
     /// outputs (keyframes and map after it, every frame's final pose).
     pub fn finish(mut self, interrupted: bool) -> Result<RunResult, SystemError> {
+        // The loop closer first (it may still wake the optimiser), then the optimiser.
+        let closer = match std::mem::replace(&mut self.loop_stage, LoopStage::Off) {
+            LoopStage::Off => None,
+            LoopStage::Inline(closer) => Some(*closer),
+            LoopStage::Thread { jobs, handle } => {
+                drop(jobs);
+                Some(
+                    handle
+                        .join()
+                        .expect("the loop-closure thread does not panic"),
+                )
+            }
+        };
+        if let Some(closer) = &closer {
+            self.record.timings.extend(&closer.timings);
+        }
+        let appearance = std::mem::take(
+            &mut *self
+                .appearance_loops
+                .lock()
+                .unwrap_or_else(|e| e.into_inner()),
+        );
+        for event in appearance {
+            self.loop_event(event.keyframe, event.old, "appearance");
+        }
         if let Some(worker) = self.worker.take() {
             drop(worker.wake);
             let optimiser = worker
@@ -496,13 +682,18 @@ impl LiveSystem {
             self.optimiser = Some(optimiser);
         }
         self.optimise()?;
-        for e in self
-            .optimisation_errors
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .iter()
-        {
-            eprintln!("warning: {e}");
+        let mut warnings = std::mem::take(
+            &mut *self
+                .background_errors
+                .lock()
+                .unwrap_or_else(|e| e.into_inner()),
+        );
+        if self.loop_queue_full > 0 {
+            warnings.push(format!(
+                "{} keyframes found the loop closer's queue full and were not entered into \
+                 place recognition (loops.queue: {})",
+                self.loop_queue_full, self.config.loops.queue
+            ));
         }
         let graph = self.graph.snapshot();
         let store = self.store.read().unwrap_or_else(|e| e.into_inner()).clone();
@@ -551,6 +742,7 @@ impl LiveSystem {
             optimisations,
             graph,
             keyframes: store,
+            warnings,
         })
     }
 

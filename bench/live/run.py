@@ -1,0 +1,118 @@
+#!/usr/bin/env python3
+"""The live-system comparison (see run.sh): dwslam and the peers on the same sequences.
+
+Per sequence:
+- dwslam deterministic, pinned to one core (its time per frame is comparable with a peer's on
+  one core), and threaded on both cores (the whole system's frames per second);
+- ORB-SLAM3 (pyorbslam3) `--orb-runs` times on one core (it is multi-threaded and not
+  deterministic: the range is reported);
+- Open3D hybrid RGB-D odometry once (RGB-D sequences).
+ATE RMSE by evo_ape -a (SE(3) alignment) on the every-frame trajectory each system returned live
+and on its trajectory after the run (dwslam: trajectory_final.tum; ORB-SLAM3: the trajectory it
+saves at shutdown)."""
+import argparse, csv, json, os, re, statistics, subprocess, sys, time
+
+ap = argparse.ArgumentParser()
+ap.add_argument("--dwslam", required=True)
+ap.add_argument("--data", required=True)
+ap.add_argument("--peers", required=True)
+ap.add_argument("--venv", required=True)
+ap.add_argument("--out", required=True)
+ap.add_argument("--orb-runs", type=int, default=3)
+ap.add_argument("--only", help="comma-separated sequence names")
+a = ap.parse_args()
+evo = os.path.join(a.venv, "bin", "evo_ape")
+py = os.path.join(a.venv, "bin", "python")
+
+SEQUENCES = [
+    # name, dwslam arguments, peer sequence (run_peer.py), peer extra args, Open3D
+    ("7-Scenes RGB-D (500 frames with depth)", ["seven_scenes_redkitchen_1000", "--depth-frames-only"], "7scenes", [], True),
+    ("7-Scenes RGB-D (all 1000 frames)", ["seven_scenes_redkitchen_1000"], None, [], False),
+    ("KITTI snippet stereo", ["kitti_odometry_snippets/KITTI_sequence_1"], "kitti-dir-stereo",
+     ["--dir", os.path.join(a.data, "kitti_odometry_snippets/KITTI_sequence_1")], False),
+    ("EuRoC micro stereo", ["euroc_v1_01_easy_micro"], "euroc", [], False),
+]
+
+
+def ate(gt, est):
+    p = subprocess.run([evo, "tum", gt, est, "-a", "--t_max_diff", "0.02"], capture_output=True, text=True)
+    m = re.search(r"rmse\s+([0-9.eE+-]+)", p.stdout)
+    return float(m.group(1)) if m else None
+
+
+def dwslam(name, args, core, deterministic):
+    out = os.path.join(a.out, "dwslam-" + re.sub(r"\W+", "_", name) + ("-det" if deterministic else "-thr"))
+    cmd = ([] if core is None else ["taskset", "-c", str(core)]) + [a.dwslam, "run",
+           os.path.join(a.data, args[0]), *args[1:], "--out", out, "--quiet"] + (["--deterministic"] if deterministic else [])
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        return {"error": (p.stdout + p.stderr)[-500:]}
+    s = json.load(open(os.path.join(out, "summary.json")))
+    rows = list(csv.DictReader(open(os.path.join(out, "frames.csv"))))
+    track = [float(r["tracking_ms"]) for r in rows if float(r["tracking_ms"]) > 0]
+    frame = [float(r["frame_ms"]) for r in rows if float(r["frame_ms"]) > 0]
+    gt = os.path.join(out, "ground_truth.tum")
+    n = s["frames"]
+    return {
+        "ate_live": ate(gt, os.path.join(out, "trajectory.tum")),
+        "ate_final": ate(gt, os.path.join(out, "trajectory_final.tum")),
+        "tracked": (s["tracking"]["good"] + s["tracking"]["weak"]) / n,
+        "ms_tracking_median": statistics.median(track) if track else None,
+        "ms_frame_median": statistics.median(frame) if frame else None,
+        "fps": n / wall,
+        "keyframes": s["keyframes"],
+        "loops": len(s.get("loops", [])),
+        "stages": {t["stage"]: t["median_ms"] for t in s["timings"]},
+    }
+
+
+def peer(kind, seq, extra, core=1):
+    out = os.path.join(a.out, f"{kind}-{seq}")
+    cmd = ["taskset", "-c", str(core), py, os.path.join(a.peers, "run_peer.py"), kind, seq, out, "--data", a.data, *extra]
+    p = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PATH": os.path.join(a.venv, "bin") + ":" + os.environ["PATH"]})
+    lines = [l for l in p.stdout.splitlines() if l.startswith("{")]
+    return json.loads(lines[-1]) if lines else {"error": (p.stdout + p.stderr)[-500:]}
+
+
+def fmt(x, scale=100.0, unit=" cm"):
+    return "—" if x is None else f"{x * scale:.2f}{unit}"
+
+
+results, table = {}, []
+table.append("| sequence | system | ATE live | ATE after the run | tracked | median ms/frame (one core) | ratio to dwslam | fps (2 cores) |")
+table.append("|---|---|---|---|---|---|---|---|")
+for name, args, seq, extra, o3d in SEQUENCES:
+    if a.only and not any(o in name for o in a.only.split(",")):
+        continue
+    det = dwslam(name, args, 0, True)
+    thr = dwslam(name, args, None, False)
+    results[name] = {"dwslam_deterministic": det, "dwslam_threaded": thr}
+    ours_ms = det.get("ms_frame_median")
+    table.append(f"| {name} | dwslam (deterministic) | {fmt(det.get('ate_live'))} | {fmt(det.get('ate_final'))} | "
+                 f"{det.get('tracked', 0) * 100:.0f} % | {ours_ms or 0:.1f} (tracking {det.get('ms_tracking_median') or 0:.1f}) | 1 | |")
+    table.append(f"| | dwslam (threaded) | {fmt(thr.get('ate_live'))} | {fmt(thr.get('ate_final'))} | "
+                 f"{thr.get('tracked', 0) * 100:.0f} % | | | {thr.get('fps', 0):.1f} |")
+    if seq:
+        runs = [peer("orbslam3", seq, extra) for _ in range(a.orb_runs)]
+        results[name]["orbslam3"] = runs
+        ok = [r for r in runs if "ate_rmse_m" in r and r["ate_rmse_m"] is not None]
+        if ok:
+            rng = lambda k: (min(r[k] for r in ok if r.get(k) is not None), max(r[k] for r in ok if r.get(k) is not None))
+            lo, hi = rng("ate_rmse_m")
+            olo, ohi = rng("ate_rmse_online_m") if all(r.get("ate_rmse_online_m") for r in ok) else (None, None)
+            ms = statistics.median(r["ms_median"] for r in ok)
+            table.append(f"| | ORB-SLAM3 ({len(ok)} runs) | {fmt(olo)}–{fmt(ohi)} | {fmt(lo)}–{fmt(hi)} | "
+                         f"{min(r['tracked_frac'] for r in ok) * 100:.0f}–{max(r['tracked_frac'] for r in ok) * 100:.0f} % | {ms:.1f} | "
+                         f"{ms / ours_ms:.2f} | |" if ours_ms else "")
+    if o3d:
+        r = peer("open3d", seq, [])
+        results[name]["open3d"] = r
+        if r.get("ate_rmse_m") is not None:
+            table.append(f"| | Open3D RGB-D odometry | {fmt(r['ate_rmse_m'])} | — | {r['tracked_frac'] * 100:.0f} % | "
+                         f"{r['ms_median']:.1f} | {r['ms_median'] / ours_ms:.2f} | |" if ours_ms else "")
+text = "\n".join(table)
+print(text)
+open(os.path.join(a.out, "table.md"), "w").write(text + "\n")
+json.dump(results, open(os.path.join(a.out, "results.json"), "w"), indent=1)

@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# dwslam's live system beside ORB-SLAM3 (PyPI pyorbslam3) and Open3D RGB-D odometry on the same
+# sequences in one run, each pinned to one core, ATE by evo_ape -a; prints a markdown table
+# (also written to OUT/table.md).
+#   bench/live/run.sh [OUT]      env: ORB_RUNS (default 3), DWSLAM_DATA, LIVE_PEERS_VENV,
+#                                     DWSLAM_BUILD_LOCK (a lock file serialising builds/timings)
+set -euo pipefail
+HERE=$(cd "$(dirname "$0")" && pwd)
+ROOT=$(cd "$HERE/../.." && pwd)
+DATA=${DWSLAM_DATA:-$ROOT/../shared/data}
+PEERS=${PEERS:-$ROOT/../shared/peers/live}
+V=${LIVE_PEERS_VENV:-$HOME/.cache/dwslam-live-peers}
+OUT=${1:-$ROOT/out/bench-live}
+mkdir -p "$OUT"
+lock() { if [ -n "${DWSLAM_BUILD_LOCK:-}" ]; then flock "$DWSLAM_BUILD_LOCK" "$@"; else "$@"; fi; }
+lock cargo build -q --release -p dwslam --manifest-path "$ROOT/Cargo.toml"
+DWSLAM_DATA=$DATA bash "$PEERS/setup.sh" >/dev/null
+export DWSLAM_DATA=$DATA OMP_NUM_THREADS=1
+lock "$V/bin/python" "$HERE/run.py" --dwslam "$ROOT/target/release/dwslam" --data "$DATA" \
+  --peers "$PEERS" --venv "$V" --out "$OUT" --orb-runs "${ORB_RUNS:-3}"

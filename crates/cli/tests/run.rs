@@ -1,0 +1,158 @@
+//! `dwslam run`: bad arguments fail before any work with one line naming what is wrong; a short
+//! real RGB-D run writes every output — both trajectories, the map, the summary with its
+//! evaluation, the report's pictures and, with `--dense-ply`, the dense model.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn dwslam(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dwslam"))
+        .args(args)
+        .output()
+        .expect("the binary runs")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("dwslam-run-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn bad_arguments_fail_first() {
+    let Some(kitchen) = data::paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let kitchen = kitchen.to_str().unwrap();
+    let dir = scratch("bad");
+    let out = dir.join("out");
+    let out = out.to_str().unwrap();
+    let config = dir.join("c.yml");
+    std::fs::write(&config, "tracker:\n  serch_radius: 2\n").unwrap();
+    let bad_value = dir.join("v.yml");
+    std::fs::write(&bad_value, "loops:\n  queue: 0\n").unwrap();
+    let missing = dir.join("nope");
+    for (args, expect) in [
+        (vec!["run", missing.to_str().unwrap(), "--out", out], "nope"),
+        (
+            vec![
+                "run",
+                kitchen,
+                "--out",
+                out,
+                "--config",
+                config.to_str().unwrap(),
+            ],
+            "serch_radius",
+        ),
+        (
+            vec![
+                "run",
+                kitchen,
+                "--out",
+                out,
+                "--config",
+                bad_value.to_str().unwrap(),
+            ],
+            "loops.queue",
+        ),
+        (
+            vec!["run", kitchen, "--out", out, "--max-frames", "0"],
+            "--max-frames",
+        ),
+        (
+            vec!["run", kitchen, "--out", out, "--sensor", "stereo"],
+            "--sensor stereo",
+        ),
+    ] {
+        let o = dwslam(&args);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(
+            stderr.contains(expect),
+            "{args:?}: {expect:?} not in {stderr}"
+        );
+        // One error line (a YAML error goes on to show the offending line), no panic.
+        assert!(
+            stderr.starts_with("error: ") && !stderr.contains("panicked"),
+            "{stderr}"
+        );
+    }
+    assert!(!dir.join("out").exists(), "nothing is written");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_short_run_writes_every_output() {
+    let Some(kitchen) = data::paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let dir = scratch("short");
+    let out = dir.join("out");
+    let o = dwslam(&[
+        "run",
+        kitchen.to_str().unwrap(),
+        "--depth-frames-only",
+        "--max-frames",
+        "40",
+        "--deterministic",
+        "--dense-ply",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        stdout.contains("live trajectory (40 of 40 frames"),
+        "{stdout}"
+    );
+    for f in [
+        "trajectory.tum",
+        "trajectory_final.tum",
+        "keyframes.tum",
+        "map.ply",
+        "summary.json",
+        "frames.csv",
+        "trajectory.png",
+        "keyframe_graph.png",
+        "time_per_frame.png",
+        "time_per_keyframe.png",
+        "tracked_points.png",
+    ] {
+        let p = out.join(f);
+        assert!(
+            p.metadata().is_ok_and(|m| m.len() > 0),
+            "{f} missing or empty"
+        );
+    }
+    let tum = std::fs::read_to_string(out.join("trajectory.tum")).unwrap();
+    assert_eq!(tum.lines().filter(|l| !l.starts_with('#')).count(), 40);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let live = summary["evaluation"]["live"]["ate_rmse_m"]
+        .as_f64()
+        .unwrap();
+    assert!(live > 0.0 && live < 0.05, "live ATE {live}");
+    // The dense model: a binary PLY with many coloured points.
+    let ply = std::fs::read(out.join("dense.ply")).unwrap();
+    let header = String::from_utf8_lossy(&ply[..ply.len().min(400)]);
+    assert!(
+        header.starts_with("ply\nformat binary_little_endian"),
+        "{header}"
+    );
+    let n: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|n| n.trim().parse().ok())
+        .unwrap();
+    // 40 frames, five keyframes or so of a kitchen at 1–3 m: thousands of 1.7 cm voxels.
+    assert!(n > 5_000, "{n} dense points");
+    assert!(header.contains("property uchar red"), "{header}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

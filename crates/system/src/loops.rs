@@ -1,0 +1,275 @@
+//! Large-scale loop closure of the live system (thesis §6.4.2, the third thread of §6.5.2).
+//!
+//! Each new keyframe is handed to the loop closer, which
+//!
+//! 1. describes it for place recognition (ORB words and the 3D point of each keypoint with a
+//!    depth) and adds it to the database;
+//! 2. asks the database for a revisit among the keyframes that are **not** topologically close
+//!    (thesis: never between topologically close keyframes, where local registration and
+//!    metric loop closure join the graph): those within [`LoopConfig::exclusion_hops`] edges of
+//!    the keyframe graph; the database verifies the best hypotheses by a 3-point RANSAC in
+//!    SE(3) (eq. 6.9) and guided ORB matching;
+//! 3. **guided matching into the map**: the map points of the old place (the old keyframe's and
+//!    its covisible neighbours') are projected into the new keyframe at the pose the verified
+//!    loop implies, `T_new = T_new,old·T_old`, and searched there by the same patch search as
+//!    metric loop closure ([`GuidedSearch`]);
+//! 4. closes the loop through the graph (`slam::mapping::Mapper::close_appearance_loop`: the
+//!    found old points become observations of the new keyframe, the edge `E_old,new` is added
+//!    with their rigid alignment as its measurement), under a short write lock. The double
+//!    window optimisation then corrects the poses; in the threaded system the loop closer
+//!    wakes it.
+//!
+//! The same [`LoopCloser::process`] runs in the loop-closure thread ([`crate::live::Mode::
+//! Threaded`]) and inline after each keyframe (deterministic mode).
+
+use crate::association::GuidedSearch;
+use crate::config::SystemConfig;
+use crate::frame::{FrameData, SensorFrontEnd, pixel_depth};
+use crate::keyframes::KeyframeStore;
+use crate::place_recognition::{LoopCandidate, PlaceRecognition, PlaceRecognitionError};
+use crate::search::SearchScratch;
+use data::output::StageTimings;
+use geom::StereoCamera;
+use lie::LieGroup;
+use slam::map::{KeyframeId, PointId, SharedGraph, SlamGraph};
+use slam::mapping::{AppearanceMatch, Mapper, MappingConfig, MappingError};
+use std::collections::BTreeSet;
+use std::sync::{Arc, RwLock};
+use std::time::Instant;
+use vision::bow::Vocabulary;
+
+/// One keyframe for the loop closer.
+#[derive(Clone, Debug)]
+pub struct LoopJob {
+    /// The keyframe.
+    pub keyframe: KeyframeId,
+    /// The frame it was made from (its image, corners and depth).
+    pub frame: Arc<FrameData>,
+}
+
+/// An appearance-based loop the closer closed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AppearanceLoop {
+    /// The new keyframe.
+    pub keyframe: KeyframeId,
+    /// The old keyframe it sees the place of.
+    pub old: KeyframeId,
+    /// RANSAC inliers of the ORB matches.
+    pub ransac_inliers: usize,
+    /// Old map points found in the new keyframe by the guided matching.
+    pub map_matches: usize,
+}
+
+/// Why the loop closer failed (a keyframe without a loop is not a failure).
+#[derive(Debug, thiserror::Error)]
+pub enum LoopError {
+    /// Place recognition refused the keyframe.
+    #[error(transparent)]
+    PlaceRecognition(#[from] PlaceRecognitionError),
+    /// The graph refused the loop.
+    #[error("closing an appearance loop: {0}")]
+    Mapping(#[from] MappingError),
+}
+
+/// The loop closer: the place-recognition database and the stages that close a loop.
+pub struct LoopCloser {
+    recogniser: PlaceRecognition,
+    mapper: Mapper<StereoCamera, 3>,
+    sensor: SensorFrontEnd,
+    exclusion_hops: usize,
+    radius: f64,
+    min_ncc: f32,
+    max_view_angle: f64,
+    scratch: SearchScratch,
+    /// Time of each stage.
+    pub timings: StageTimings,
+}
+
+impl LoopCloser {
+    /// A loop closer with `vocabulary` for the sensor `sensor` and the system's `config`;
+    /// `mapping` are the keyframe pipeline's parameters (the loop needs as many matches as a
+    /// loop of the pipeline).
+    pub fn new(
+        vocabulary: Arc<Vocabulary>,
+        sensor: SensorFrontEnd,
+        config: &SystemConfig,
+        mapping: MappingConfig,
+    ) -> Result<Self, PlaceRecognitionError> {
+        let mut place = config.loops.place_recognition.clone();
+        place.depth_noise = config.depth_noise_for(sensor.camera(), sensor.measures_disparity());
+        Ok(LoopCloser {
+            recogniser: PlaceRecognition::new(vocabulary, place)?,
+            mapper: Mapper::new(*sensor.camera(), mapping),
+            sensor,
+            exclusion_hops: config.loops.exclusion_hops,
+            radius: config.mapping.loop_search_radius,
+            min_ncc: config.tracker.min_ncc,
+            max_view_angle: config.tracker.max_view_angle_deg.to_radians(),
+            scratch: SearchScratch::default(),
+            timings: StageTimings::default(),
+        })
+    }
+
+    /// Keyframes in the database.
+    pub fn len(&self) -> usize {
+        self.recogniser.len()
+    }
+
+    /// `true` before the first keyframe.
+    pub fn is_empty(&self) -> bool {
+        self.recogniser.is_empty()
+    }
+
+    /// Adds `job`'s keyframe to the database and closes its loop, if it has one (see the
+    /// [module docs](self)). Holds the graph's read lock to plan and match, its write lock
+    /// only to insert the loop.
+    pub fn process(
+        &mut self,
+        graph: &SharedGraph<3>,
+        store: &RwLock<KeyframeStore>,
+        job: &LoopJob,
+    ) -> Result<Option<AppearanceLoop>, LoopError> {
+        let t = Instant::now();
+        let frame = &job.frame;
+        let depth = |u, v| frame.depth.as_ref().and_then(|d| pixel_depth(d, u, v));
+        self.recogniser
+            .add_keyframe(job.keyframe, frame.gray(), depth, self.sensor.pinhole())?;
+        self.timings.record("loop: ORB features", t.elapsed());
+        let t = Instant::now();
+        let excluded = {
+            let g = graph.read();
+            if g.keyframe(job.keyframe).is_none() {
+                return Ok(None);
+            }
+            topological_neighbourhood(&g, job.keyframe, self.exclusion_hops)
+        };
+        let candidate = self.recogniser.detect(job.keyframe, &excluded)?;
+        self.timings.record("loop: detect and verify", t.elapsed());
+        let Some(candidate) = candidate else {
+            return Ok(None);
+        };
+        let t = Instant::now();
+        let place = {
+            let store = store.read().unwrap_or_else(|e| e.into_inner());
+            let g = graph.read();
+            self.map_matches(&g, &store, job, &candidate)
+        };
+        self.timings.record("loop: guided matching", t.elapsed());
+        let Some(place) = place else {
+            return Ok(None);
+        };
+        let t = Instant::now();
+        let map_matches = place.correspondences.len();
+        let closed = self
+            .mapper
+            .close_appearance_loop(&mut graph.write(), job.keyframe, &place)?;
+        self.timings.record("loop: close", t.elapsed());
+        Ok(closed.map(|old| AppearanceLoop {
+            keyframe: job.keyframe,
+            old,
+            ransac_inliers: candidate.ransac_inliers,
+            map_matches,
+        }))
+    }
+
+    /// The old place's map points found in the new keyframe at the pose the loop implies.
+    fn map_matches(
+        &mut self,
+        graph: &SlamGraph<3>,
+        store: &KeyframeStore,
+        job: &LoopJob,
+        candidate: &LoopCandidate,
+    ) -> Option<AppearanceMatch<3>> {
+        let old_pose = graph.pose(candidate.old).ok()?;
+        let implied = candidate.query_from_old.compose(&old_pose).rigid_part();
+        let own = graph.keyframe(job.keyframe)?.observations();
+        let mut place: Vec<KeyframeId> = graph.n1(candidate.old);
+        place.push(candidate.old);
+        let points: Vec<PointId> = graph
+            .points_visible_from(&place)
+            .into_iter()
+            .filter(|p| !own.contains_key(p))
+            .collect();
+        let found = GuidedSearch {
+            frame: &job.frame,
+            store,
+            sensor: &self.sensor,
+            radius: self.radius,
+            min_ncc: self.min_ncc,
+            max_view_angle: self.max_view_angle,
+            min_disparity: self.mapper.config().min_disparity,
+        }
+        .run(graph, &implied, points, &mut self.scratch);
+        // The new keyframe's own point at a found pixel, if it has one there (then its
+        // position, not the measurement's depth, enters the alignment).
+        let same_pixel = 1.5f64;
+        let correspondences = found
+            .into_iter()
+            .map(|(p, z)| {
+                let here = own
+                    .iter()
+                    .find(|(_, o)| (o.x - z.x).hypot(o.y - z.y) < same_pixel)
+                    .map(|(q, _)| *q);
+                (p, z, here)
+            })
+            .collect();
+        Some(AppearanceMatch {
+            old: candidate.old,
+            correspondences,
+        })
+    }
+}
+
+/// The keyframes within `hops` edges of `root` in the keyframe graph (root included): the
+/// topological neighbourhood appearance-based loops never join.
+pub fn topological_neighbourhood<const N: usize>(
+    graph: &SlamGraph<N>,
+    root: KeyframeId,
+    hops: usize,
+) -> BTreeSet<KeyframeId> {
+    let mut seen = BTreeSet::from([root]);
+    let mut frontier = vec![root];
+    for _ in 0..hops {
+        let mut next = Vec::new();
+        for k in frontier {
+            let Some(kf) = graph.keyframe(k) else {
+                continue;
+            };
+            for &n in kf.edges().keys() {
+                if seen.insert(n) {
+                    next.push(n);
+                }
+            }
+        }
+        frontier = next;
+    }
+    seen
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lie::Sim3;
+
+    #[test]
+    fn the_neighbourhood_follows_edges_for_the_given_hops() {
+        let mut g = SlamGraph::<3>::new();
+        let k: Vec<KeyframeId> = (0..6).map(|_| g.add_keyframe(Sim3::identity())).collect();
+        // A chain 0-1-2-3-4 and a loop edge 4-0; keyframe 5 is alone.
+        for w in k[..5].windows(2) {
+            g.add_edge(w[0], w[1], None).unwrap();
+        }
+        g.add_edge(k[4], k[0], None).unwrap();
+        let n = |root: usize, hops| {
+            topological_neighbourhood(&g, k[root], hops)
+                .into_iter()
+                .map(|x| x.index())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(n(2, 0), vec![2]);
+        assert_eq!(n(2, 1), vec![1, 2, 3]);
+        assert_eq!(n(2, 2), vec![0, 1, 2, 3, 4]);
+        assert_eq!(n(0, 1), vec![0, 1, 4]);
+        assert_eq!(n(5, 3), vec![5]);
+    }
+}
