@@ -10,6 +10,8 @@
 //!   vision_bench tvl1 IMG0 IMG1 OUT [ITERATIONS [WARPS]]
 //!                                           (writes OUT.du, OUT.dv as raw f32; default params
 //!                                           unless ITERATIONS / WARPS per warp are given)
+//!   vision_bench patch IMG0 IMG1               (guided-search kernels on FAST corners of IMG0:
+//!                                           ns per call of each, and per whole search)
 //!   vision_bench dense REF REF_DEPTH CUR FX FY CX CY LEVELS FINEST ITERATIONS
 //!                                           (REF_DEPTH: 16-bit PNG in millimetres, 0 and 65535
 //!                                           invalid; pyramids built outside the timing, as in the
@@ -179,6 +181,141 @@ fn main() {
             println!(
                 "{}",
                 serde_json::json!({"ms": ms, "width": f.du.width(), "height": f.du.height()})
+            );
+        }
+        "patch" => {
+            use vision::patch::{Patch, nssd, refine_subpixel, template_with_gradient, zmssd};
+            let i0 = load_gray_u8(arg(2)).expect("image 0");
+            let i1 = load_gray_u8(arg(3)).expect("image 1");
+            let corners: Vec<(f32, f32)> = vision::fast::fast9(&i0, 12, true)
+                .iter()
+                .filter(|c| {
+                    c.u > 20.0
+                        && c.v > 20.0
+                        && c.u < i0.width() as f32 - 20.0
+                        && c.v < i0.height() as f32 - 20.0
+                })
+                .step_by(3)
+                .take(300)
+                .map(|c| (c.u, c.v))
+                .collect();
+            // A mild affine warp (5° rotation, 1.05 scale), as the tracker predicts from a pose.
+            let (sn, cs) = (0.0872f64.sin() * 1.05, 0.0872f64.cos() * 1.05);
+            let warp = nalgebra::Matrix2::new(cs, -sn, sn, cs);
+            let templates: Vec<Patch> = corners
+                .iter()
+                .filter_map(|&(u, v)| Patch::extract_warped(&i0, u, v, &warp))
+                .collect();
+            let offsets: Vec<(f32, f32)> = (-1..=1)
+                .flat_map(|dy| (-1..=1).map(move |dx| (dx as f32 * 2.0, dy as f32 * 2.0)))
+                .collect();
+            // Each timed call runs its kernel REPS times over all corners (the driver's clock
+            // has scheduler-tick resolution and stops at 500 calls).
+            const REPS: usize = 40;
+            let n = (corners.len() * REPS) as f64;
+            let per = |ms: f64, calls: f64| ms * 1e6 / calls;
+            let (ms, _) = time_ms(5, || {
+                (0..REPS)
+                    .flat_map(|_| corners.iter())
+                    .filter_map(|&(u, v)| Patch::extract(&i1, u + 0.3, v - 0.2))
+                    .count()
+            });
+            let extract_ns = per(ms, n);
+            let (ms, _) = time_ms(5, || {
+                (0..REPS)
+                    .flat_map(|_| corners.iter())
+                    .filter_map(|&(u, v)| Patch::extract_warped(&i0, u, v, &warp))
+                    .count()
+            });
+            let warped_ns = per(ms, n);
+            let cands: Vec<Patch> = corners
+                .iter()
+                .filter_map(|&(u, v)| Patch::extract(&i1, u, v))
+                .collect();
+            let pairs = (templates.len().min(cands.len()) * REPS) as f64;
+            let (ms, _) = time_ms(5, || {
+                (0..REPS)
+                    .flat_map(|_| templates.iter().zip(&cands))
+                    .map(|(a, b)| nssd(a, b))
+                    .sum::<f32>()
+            });
+            let nssd_ns = per(ms, pairs);
+            let (ms, _) = time_ms(5, || {
+                (0..REPS)
+                    .flat_map(|_| templates.iter().zip(&cands))
+                    .map(|(a, b)| zmssd(a, b))
+                    .sum::<f32>()
+            });
+            let zmssd_ns = per(ms, pairs);
+            let (ms, _) = time_ms(5, || {
+                (0..REPS)
+                    .flat_map(|_| corners.iter())
+                    .filter_map(|&(u, v)| template_with_gradient(&i0, u, v, &warp))
+                    .count()
+            });
+            let tg_ns = per(ms, n);
+            let tgs: Vec<_> = corners
+                .iter()
+                .filter_map(|&(u, v)| template_with_gradient(&i0, u, v, &warp).map(|t| (t, u, v)))
+                .collect();
+            let refine_all = || {
+                tgs.iter()
+                    .map(|(t, u, v)| refine_subpixel(t, &i1, [*u + 0.7, *v - 0.6], 10))
+                    .collect::<Vec<_>>()
+            };
+            let (ms, _) = time_ms(5, || (0..REPS).map(|_| refine_all().len()).sum::<usize>());
+            let refined = refine_all();
+            let refine_ns = per(ms, (tgs.len() * REPS) as f64);
+            // The tracker's search: template, 9 candidates by NSSD, refinement of the best,
+            // NSSD at the refined position.
+            let search = || {
+                corners
+                    .iter()
+                    .filter_map(|&(u, v)| {
+                        let t = Patch::extract_warped(&i0, u, v, &warp)?;
+                        let mut best: Option<(f32, f32, f32)> = None;
+                        for &(dx, dy) in &offsets {
+                            let Some(p) = Patch::extract(&i1, u + dx, v + dy) else {
+                                continue;
+                            };
+                            let s = nssd(&t, &p);
+                            if best.is_none_or(|b| s < b.2) {
+                                best = Some((u + dx, v + dy, s));
+                            }
+                        }
+                        let (bu, bv, _) = best?;
+                        let r = template_with_gradient(&i0, u, v, &warp)
+                            .and_then(|tg| refine_subpixel(&tg, &i1, [bu, bv], 10))
+                            .unwrap_or([bu, bv]);
+                        let p = Patch::extract(&i1, r[0], r[1])?;
+                        Some((r, nssd(&t, &p)))
+                    })
+                    .collect::<Vec<_>>()
+            };
+            let (ms, _) = time_ms(5, || (0..REPS).map(|_| search().len()).sum::<usize>());
+            let found = search();
+            let search_ns = per(ms, n);
+            let mut digest = 0xcbf2_9ce4_8422_2325u64;
+            let mut mix = |x: u32| digest = (digest ^ x as u64).wrapping_mul(0x0100_0000_01b3);
+            for t in &templates {
+                t.data.iter().for_each(|x| mix(x.to_bits()));
+            }
+            for (r, s) in &found {
+                mix(r[0].to_bits());
+                mix(r[1].to_bits());
+                mix(s.to_bits());
+            }
+            for r in refined.iter().flatten() {
+                mix(r[0].to_bits());
+                mix(r[1].to_bits());
+            }
+            println!(
+                "{}",
+                serde_json::json!({"corners": corners.len(), "extract_ns": extract_ns,
+                    "extract_warped_ns": warped_ns, "nssd_ns": nssd_ns, "zmssd_ns": zmssd_ns,
+                    "template_with_gradient_ns": tg_ns, "refine_subpixel_ns": refine_ns,
+                    "search_ns": search_ns, "found": found.len(),
+                    "digest": format!("{digest:016x}")})
             );
         }
         "dense" => {

@@ -134,37 +134,32 @@ unsafe fn stream_avx2(left: &GrayImage, right: &GrayImage, params: &StereoParams
 /// [`census_transform`]'s packed words (the same bits, placed differently), which lets the
 /// AVX2 kernel build a word from two byte-compare masks.
 #[inline(always)]
-fn census_spread<const AVX2: bool>(img: &GrayImage, radius: usize, out: &mut Vec<u64>) {
+fn census_spread_row<const AVX2: bool>(img: &GrayImage, radius: usize, v: usize, o: &mut [u64]) {
     let (w, h) = (img.width(), img.height());
     let c = radius.min(3);
-    out.clear();
-    out.resize(w * h, 0);
     // Interior rows and columns with an 8-byte load per window row (x − 3 … x + 4) for c = 3.
     let simd_ok = AVX2 && c == 3 && w >= 8 && h >= 7;
-    for v in 0..h {
-        let o = &mut out[v * w..(v + 1) * w];
-        let interior_row = v >= 3 && v + 3 < h;
-        let (x0, x1) = if simd_ok && interior_row {
-            (3, w - 4)
-        } else {
-            (0, 0)
-        };
-        #[cfg(target_arch = "x86_64")]
-        if x1 > x0 {
-            // SAFETY: AVX2 instances run after `simd::avx2()`; rows v − 3 … v + 3 exist and
-            // columns x − 3 … x + 4 lie in 0..w for x in 3..w − 4.
-            unsafe { census_row_avx2(img, v, x0, x1, o) };
+    let interior_row = v >= 3 && v + 3 < h;
+    let (x0, x1) = if simd_ok && interior_row {
+        (3, w - 4)
+    } else {
+        (0, 0)
+    };
+    #[cfg(target_arch = "x86_64")]
+    if x1 > x0 {
+        // SAFETY: AVX2 instances run after `simd::avx2()`; rows v − 3 … v + 3 exist and
+        // columns x − 3 … x + 4 lie in 0..w for x in 3..w − 4.
+        unsafe { census_row_avx2(img, v, x0, x1, o) };
+    }
+    for (x, word) in o.iter_mut().enumerate() {
+        if x >= x0 && x < x1 {
+            continue;
         }
-        for (x, word) in o.iter_mut().enumerate() {
-            if x >= x0 && x < x1 {
-                continue;
-            }
-            *word = census_spread_pixel(img, x, v, c);
-        }
+        *word = census_spread_pixel(img, x, v, c);
     }
 }
 
-/// The scalar reference of one [`census_spread`] word.
+/// The scalar reference of one [`census_spread_row`] word.
 #[inline(always)]
 fn census_spread_pixel(img: &GrayImage, u: usize, v: usize, c: usize) -> u64 {
     let (w, h) = (img.width() as i64, img.height() as i64);
@@ -310,9 +305,9 @@ fn stream<const AVX2: bool>(
     // (Disparities fit the low 16 bits of the packed minima of `decide_row`.)
     let nd = params.max_disparity.min(w - 1).min(u16::MAX as usize) + 1;
     let row_len = w * nd;
-    let (mut cl, mut cr) = (Vec::new(), Vec::new());
-    census_spread::<AVX2>(left, params.census_radius, &mut cl);
-    census_spread::<AVX2>(right, params.census_radius, &mut cr);
+    // Census rows are made when their cost row is (one row of each image at a time: whole
+    // census images cost page faults on every call).
+    let (mut cl, mut cr) = (vec![0u64; w], vec![0u64; w]);
     // Ring of pixel-cost rows (row y in slot y mod (2r + 2)).
     let cost_slots = 2 * br + 2;
     let mut costs = vec![0u8; cost_slots * row_len];
@@ -321,13 +316,14 @@ fn stream<const AVX2: bool>(
     let mut ensure = |y: usize, costs: &mut Vec<u8>| {
         while computed <= y {
             let yy = computed;
-            let rrow = &cr[yy * w..(yy + 1) * w];
+            census_spread_row::<AVX2>(left, params.census_radius, yy, &mut cl);
+            census_spread_row::<AVX2>(right, params.census_radius, yy, &mut cr);
             for (j, r) in rev[..w].iter_mut().enumerate() {
-                *r = rrow[w - 1 - j];
+                *r = cr[w - 1 - j];
             }
             let slot = yy % cost_slots;
             cost_row::<AVX2>(
-                &cl[yy * w..(yy + 1) * w],
+                &cl,
                 &rev,
                 nd,
                 &mut costs[slot * row_len..(slot + 1) * row_len],
@@ -526,22 +522,62 @@ fn decide_row(
     }
 }
 
+/// A sorting network for 9 elements (25 compare-exchanges): the three rows sorted, then the
+/// three columns, then the remaining inversions; checked on all 2⁹ 0-1 inputs in the tests
+/// (a network sorting every 0-1 sequence sorts every sequence).
+/// (`median3_valid` performs these exchanges written out, in this order.)
+#[cfg_attr(not(test), allow(dead_code))]
+const SORT9: [(usize, usize); 25] = [
+    (0, 1),
+    (3, 4),
+    (6, 7),
+    (1, 2),
+    (4, 5),
+    (7, 8),
+    (0, 1),
+    (3, 4),
+    (6, 7),
+    (0, 3),
+    (3, 6),
+    (0, 3),
+    (1, 4),
+    (4, 7),
+    (1, 4),
+    (2, 5),
+    (5, 8),
+    (2, 5),
+    (1, 3),
+    (5, 7),
+    (2, 6),
+    (4, 6),
+    (2, 4),
+    (2, 3),
+    (5, 6),
+];
+
 /// 3×3 median over the valid (finite) values of the neighbourhood; invalid pixels with at least
 /// 5 valid neighbours are filled, pixels with fewer valid neighbours become invalid.
 ///
-/// Interior pixels whose nine neighbours are all valid (most of them) take the median from a
-/// sorting network on the values' total-order keys (the order `f32::total_cmp` sorts by), which
-/// vectorises across the row; the others go through [`median3_valid_pixel`]. Identical results.
+/// Interior pixels take the median from a sorting network on the values' total-order keys (the
+/// order `f32::total_cmp` sorts by; invalid values last), which vectorises across the row; the
+/// border pixels go through [`median3_valid_pixel`]. Identical results.
+/// Inlined into the matcher's instances, so the AVX2 one compares with `vpminud`/`vpmaxud`
+/// (the baseline x86-64 build has no unsigned 32-bit min/max and emulates them).
+#[inline(always)]
 fn median3_valid(d: &Image<f32>) -> Image<f32> {
     let (w, h) = (d.width(), d.height());
     if w < 3 || h < 3 {
         return median3_valid_slow(d);
     }
-    // total_cmp's key: flip the magnitude bits of negative values; NaN (invalid) → u32::MAX
-    // here, only used where all nine are valid.
+    // total_cmp's key: flip the magnitude bits of negative values; invalid (NaN, ±∞: not
+    // finite) → u32::MAX, after every valid key.
     let key = |x: f32| {
         let b = x.to_bits();
-        b ^ ((((b as i32) >> 31) as u32) >> 1) ^ 0x8000_0000
+        if x.is_finite() {
+            b ^ ((((b as i32) >> 31) as u32) >> 1) ^ 0x8000_0000
+        } else {
+            u32::MAX
+        }
     };
     let unkey = |k: u32| {
         let b = k ^ 0x8000_0000;
@@ -577,7 +613,10 @@ fn median3_valid(d: &Image<f32>) -> Image<f32> {
                 rows[2][u],
                 rows[2][u + 1],
             ];
-            // Paeth's 19-exchange median-of-9 network.
+            // A 25-exchange sorting network of 9 (invalid keys are u32::MAX, so they sort
+            // last): the valid values come first, in total order, and the median of the `n`
+            // valid ones is element `n / 2` — index 2, 3 or 4 for n = 5 … 9, picked without a
+            // branch so the loop stays vectorised.
             macro_rules! s {
                 ($a:expr, $b:expr) => {{
                     let (x, y) = (p[$a], p[$b]);
@@ -585,27 +624,33 @@ fn median3_valid(d: &Image<f32>) -> Image<f32> {
                     p[$b] = x.max(y);
                 }};
             }
-            s!(1, 2);
-            s!(4, 5);
-            s!(7, 8);
+            // SORT9, written out (a loop over the table keeps `p` in memory, unvectorised).
             s!(0, 1);
             s!(3, 4);
             s!(6, 7);
             s!(1, 2);
             s!(4, 5);
             s!(7, 8);
+            s!(0, 1);
+            s!(3, 4);
+            s!(6, 7);
             s!(0, 3);
-            s!(5, 8);
-            s!(4, 7);
             s!(3, 6);
+            s!(0, 3);
+            s!(1, 4);
+            s!(4, 7);
             s!(1, 4);
             s!(2, 5);
-            s!(4, 7);
-            s!(4, 2);
-            s!(6, 4);
-            s!(4, 2);
-            med[u] = p[4];
-            cnt[u] = vrows[0][u - 1]
+            s!(5, 8);
+            s!(2, 5);
+            s!(1, 3);
+            s!(5, 7);
+            s!(2, 6);
+            s!(4, 6);
+            s!(2, 4);
+            s!(2, 3);
+            s!(5, 6);
+            let n = vrows[0][u - 1]
                 + vrows[0][u]
                 + vrows[0][u + 1]
                 + vrows[1][u - 1]
@@ -614,10 +659,18 @@ fn median3_valid(d: &Image<f32>) -> Image<f32> {
                 + vrows[2][u - 1]
                 + vrows[2][u]
                 + vrows[2][u + 1];
+            med[u] = if n >= 8 {
+                p[4]
+            } else if n >= 6 {
+                p[3]
+            } else {
+                p[2]
+            };
+            cnt[u] = n;
         }
         for u in 0..w {
-            o[u] = if u > 0 && u + 1 < w && cnt[u] == 9 {
-                unkey(med[u])
+            o[u] = if u > 0 && u + 1 < w {
+                if cnt[u] >= 5 { unkey(med[u]) } else { f32::NAN }
             } else {
                 median3_valid_pixel(d, u, v)
             };
@@ -691,6 +744,19 @@ pub fn disparity_to_depth(disparity: &Image<f32>, focal: f64, baseline: f64) -> 
 mod tests {
     use super::*;
     use reference::block_match_reference;
+
+    #[test]
+    fn the_nine_element_network_sorts() {
+        for bits in 0u32..512 {
+            let mut p: [u32; 9] = std::array::from_fn(|i| (bits >> i) & 1);
+            for (a, b) in SORT9 {
+                let (x, y) = (p[a], p[b]);
+                p[a] = x.min(y);
+                p[b] = x.max(y);
+            }
+            assert!(p.windows(2).all(|w| w[0] <= w[1]), "{bits:09b} → {p:?}");
+        }
+    }
 
     mod reference {
         use super::super::*;
@@ -957,12 +1023,20 @@ mod tests {
         // The two census layouts have the same Hamming distances.
         let img = random_texture(30, 20, 9);
         let packed = census_transform(&img, 3);
-        let mut spread = Vec::new();
-        census_spread::<false>(&img, 3, &mut spread);
-        let mut fast = Vec::new();
+        let whole = |avx2: bool| {
+            let mut out = vec![0u64; img.width() * img.height()];
+            for (v, row) in out.chunks_exact_mut(img.width()).enumerate() {
+                if avx2 {
+                    census_spread_row::<true>(&img, 3, v, row);
+                } else {
+                    census_spread_row::<false>(&img, 3, v, row);
+                }
+            }
+            out
+        };
+        let spread = whole(false);
         if crate::simd::avx2() {
-            census_spread::<true>(&img, 3, &mut fast);
-            assert_eq!(fast, spread);
+            assert_eq!(whole(true), spread);
         }
         for i in 0..spread.len() {
             assert_eq!(spread[i].count_ones(), packed.data()[i].count_ones());
@@ -988,6 +1062,7 @@ mod tests {
                 0 | 1 => f32::NAN,
                 2 => -0.0,
                 3 => 0.0,
+                5 => f32::INFINITY,
                 k => (next() % 64) as f32 * 0.25 - if k == 4 { 3.0 } else { 0.0 },
             });
             let bits = |i: &Image<f32>| i.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();

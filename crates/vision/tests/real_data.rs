@@ -121,6 +121,25 @@ fn simd_and_scalar_paths_agree_on_real_frames() {
             format!("{t:?}")
         });
         assert_eq!(fast, reference, "LK over {} points", pts.len());
+        // The guided search's patch kernels (a mildly warped template from `a`, candidates
+        // and sub-pixel refinement in `b`), as the live tracker runs them.
+        let warp = nalgebra::Matrix2::new(1.03, -0.08, 0.08, 1.03);
+        let (fast, reference) = both(&|| {
+            use vision::patch::{Patch, nssd, refine_subpixel, template_with_gradient, zmssd};
+            let mut s = String::new();
+            for c in corners.iter().step_by(5) {
+                let t = Patch::extract_warped(a, c.u, c.v, &warp);
+                let p = Patch::extract(b, c.u + 0.4, c.v - 0.3);
+                if let (Some(t), Some(p)) = (&t, &p) {
+                    s += &format!("{:?} {:?} ", nssd(t, p).to_bits(), zmssd(t, p).to_bits());
+                }
+                let r = template_with_gradient(a, c.u, c.v, &warp)
+                    .and_then(|tg| refine_subpixel(&tg, b, [c.u + 0.5, c.v], 10));
+                s += &format!("{t:?} {r:?}\n");
+            }
+            s
+        });
+        assert_eq!(fast, reference, "patch kernels");
     }
     if let Some(dir) = data_dir("middlebury_stereo") {
         let d = dir.join("tsukuba");
