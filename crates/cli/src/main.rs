@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 mod args;
 mod ba;
+mod demo;
 mod eval;
 mod experiment;
 mod inspect;
@@ -44,9 +45,10 @@ enum Command {
     Vocabulary(vocabulary::VocabularyArgs),
     /// Render an image sequence with exact ground truth (TUM, EuRoC or KITTI layout).
     Render(render::RenderArgs),
-    /// The demo: double window optimisation on the simulated monocular double loop (thesis
-    /// Figures 6.11–6.12) with cDWO and gDWO; plots and summary.json written to dwslam-demo/.
-    Demo,
+    /// The demo: the live system on a furnished room rendered on the fly (RGB-D by default),
+    /// with ATE against the exact ground truth; outputs and report in dwslam-demo/. (The
+    /// double-loop study of double window optimisation is `dwslam experiment dwo`.)
+    Demo(demo::DemoArgs),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +73,6 @@ fn run(command: Command) -> Result<()> {
         Command::Run(args) => run::run(args),
         Command::Vocabulary(args) => vocabulary::run(args),
         Command::Render(args) => render::run(args),
-        Command::Demo => experiment::dwo::run(experiment::dwo::DwoArgs::demo()),
+        Command::Demo(args) => demo::run(args),
     }
 }

@@ -74,7 +74,7 @@ pub struct RenderArgs {
     pub out: PathBuf,
     /// Stereo baseline in metres (EuRoC's VI-sensor: 0.11); for mono KITTI output, the rig's
     /// right camera stated in calib.txt's P1.
-    #[arg(long, default_value_t = 0.11)]
+    #[arg(long, default_value_t = sim::render::sensor::DEFAULT_STEREO_BASELINE)]
     pub baseline: f64,
     /// Radial-tangential distortion K1,K2,P1,P2 of the rendered images (EuRoC cam0:
     /// -0.2834,0.0740,0.0002,0.00002).

@@ -9,7 +9,7 @@ use clap::Args;
 use data::camera::SensorModel;
 use data::eval::{Alignment, ate, rpe};
 use data::output::{OutputOptions, RunOutput, TrackingState};
-use data::sequence::{BadFramePolicy, OpenOptions, Sequence, SequenceFormat};
+use data::sequence::{BadFramePolicy, Frame, FrameError, OpenOptions, Sequence, SequenceFormat};
 use data::trajectory::{Trajectory, associate, write_tum};
 use indicatif::{ProgressBar, ProgressStyle};
 use lie::{LieGroup, Se3};
@@ -155,10 +155,94 @@ pub fn run(args: RunArgs) -> Result<()> {
     for w in &info.warnings {
         println!("  note: {w}");
     }
+    let reader = sequence.into_reader(8);
+    let source = Source {
+        name: args.path.display().to_string(),
+        sensor,
+        frames,
+        ground_truth: info.ground_truth.map(|g| g.trajectory),
+        skip_bad_frames: options.on_bad_frame == BadFramePolicy::Skip,
+        stream: Box::new(reader.take(frames).map(|r| r.map_err(anyhow::Error::new))),
+    };
+    let settings = Settings {
+        out: args.out.clone(),
+        config,
+        mode,
+        kitti: args.kitti,
+        dense_ply: args.dense_ply,
+        quiet: args.quiet,
+    };
+    execute(source, &settings).map(|_| ())
+}
+
+/// Where the frames come from: a recorded sequence's reader (`dwslam run`) or frames rendered
+/// on the fly (`dwslam demo`); the live system and everything after it is the same.
+pub struct Source {
+    /// What is run (printed, and the run record's name).
+    pub name: String,
+    /// The camera.
+    pub sensor: SensorModel,
+    /// The number of frames the stream will deliver (the progress bar's length).
+    pub frames: usize,
+    /// The ground truth, when there is one (ATE/RPE and the report's trajectory picture).
+    pub ground_truth: Option<Trajectory>,
+    /// A bad frame (a [`data::sequence::FrameError`]) is skipped with a warning instead of
+    /// stopping the run.
+    pub skip_bad_frames: bool,
+    /// The frames, in order.
+    pub stream: Box<dyn Iterator<Item = Result<Frame>>>,
+}
+
+/// How to run and what to write.
+pub struct Settings {
+    /// Output folder (made by the caller once the input is known to be runnable).
+    pub out: PathBuf,
+    /// The system's parameters.
+    pub config: SystemConfig,
+    /// Threaded or deterministic back-end.
+    pub mode: Mode,
+    /// Also write the trajectory in KITTI format.
+    pub kitti: bool,
+    /// Also fuse and write the dense model.
+    pub dense_ply: bool,
+    /// No progress bar.
+    pub quiet: bool,
+}
+
+/// What a run measured (the demo prints it).
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// Frames processed.
+    pub frames: usize,
+    /// Wall-clock seconds of the frame loop.
+    pub seconds: f64,
+    /// Frames whose tracking was lost.
+    pub lost: usize,
+    /// Keyframes in the map at the end.
+    pub keyframes: usize,
+    /// Loop closures.
+    pub loops: usize,
+    /// ATE RMSE (m) of the every-frame trajectory and of the final one, where evaluated.
+    pub ate: Option<(f64, f64)>,
+}
+
+/// Runs the live system on a source of frames and writes the outputs, the summary and the
+/// report into `settings.out`.
+pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
+    let Source {
+        name,
+        sensor,
+        frames,
+        ground_truth,
+        skip_bad_frames,
+        stream,
+    } = source;
+    let config = settings.config.clone();
+    let mode = settings.mode;
     let mut output = RunOutput::create(
-        &args.out,
+        &settings.out,
         OutputOptions {
-            kitti: args.kitti,
+            kitti: settings.kitti,
             ..OutputOptions::default()
         },
     )?;
@@ -172,7 +256,6 @@ pub fn run(args: RunArgs) -> Result<()> {
             }
         });
     }
-    let name = args.path.display().to_string();
     let loops = config.loops.clone();
     let dense_config = {
         let (camera, stereo) = match &sensor {
@@ -203,7 +286,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         );
         system = system.with_loop_closure(voc.vocabulary)?;
     }
-    let bar = if args.quiet {
+    let bar = if settings.quiet {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(frames as u64)
@@ -216,11 +299,10 @@ pub fn run(args: RunArgs) -> Result<()> {
         .progress_chars("=> "),
     );
     let start = Instant::now();
-    let reader = sequence.into_reader(8);
     let mut failure: Option<anyhow::Error> = None;
     let (mut lost, mut weak, mut keyframes) = (0usize, 0usize, 0usize);
     let mut waited = Instant::now();
-    for item in reader.take(frames) {
+    for item in stream {
         system.record_timing("reader: wait", waited.elapsed());
         if stop.load(Ordering::SeqCst) {
             break;
@@ -240,16 +322,22 @@ pub fn run(args: RunArgs) -> Result<()> {
                     break;
                 }
             },
-            Err(e) if options.on_bad_frame == BadFramePolicy::Skip => {
-                bar.println(format!("warning: skipped {e}"));
-                system.skip_frame(e.index, e.timestamp, format!("skipped: {}", e.kind));
-            }
-            Err(e) => {
-                failure = Some(anyhow::Error::new(e).context(
-                    "stopped at a bad frame (--on-bad-frame skip reads past it); the outputs hold the frames before it",
-                ));
-                break;
-            }
+            Err(e) => match e.downcast_ref::<FrameError>() {
+                Some(bad) if skip_bad_frames => {
+                    bar.println(format!("warning: skipped {bad}"));
+                    system.skip_frame(bad.index, bad.timestamp, format!("skipped: {}", bad.kind));
+                }
+                Some(_) => {
+                    failure = Some(e.context(
+                        "stopped at a bad frame (--on-bad-frame skip reads past it); the outputs hold the frames before it",
+                    ));
+                    break;
+                }
+                None => {
+                    failure = Some(e);
+                    break;
+                }
+            },
         }
         if let Some(f) = system.record().frames.last() {
             output.log_frame(f)?;
@@ -278,7 +366,7 @@ pub fn run(args: RunArgs) -> Result<()> {
             ""
         }
     );
-    let ground_truth = info.ground_truth.as_ref().map(|g| &g.trajectory);
+    let ground_truth = ground_truth.as_ref();
     let evaluation = ground_truth.map(|gt| evaluate(gt, &result));
     let mut record = result.record.clone();
     record.extra.insert(
@@ -324,7 +412,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         record.extra.insert("evaluation".into(), e.json.clone());
     }
     output.write(&record, ground_truth)?;
-    let final_path = args.out.join(FINAL_TRAJECTORY_FILE);
+    let final_path = settings.out.join(FINAL_TRAJECTORY_FILE);
     std::fs::write(&final_path, {
         let mut buf = Vec::new();
         write_tum(&result.final_trajectory, &mut buf)?;
@@ -336,12 +424,12 @@ pub fn run(args: RunArgs) -> Result<()> {
             println!("{line}");
         }
     }
-    write_frame_stats(&args.out.join(FRAME_STATS_FILE), &result)?;
-    if args.dense_ply {
+    write_frame_stats(&settings.out.join(FRAME_STATS_FILE), &result)?;
+    if settings.dense_ply {
         let (camera, config) = &dense_config;
         let t = Instant::now();
         let model = system::dense_model::fuse(&result.graph, &result.keyframes, camera, config)?;
-        let path = args.out.join(DENSE_FILE);
+        let path = settings.out.join(DENSE_FILE);
         let file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
         model
@@ -356,11 +444,19 @@ pub fn run(args: RunArgs) -> Result<()> {
             t.elapsed().as_secs_f64()
         );
     }
-    report(&args.out, &result, ground_truth)?;
-    println!("wrote {}", args.out.display());
+    report(&settings.out, &result, ground_truth)?;
+    println!("wrote {}", settings.out.display());
+    let outcome = Outcome {
+        frames: processed,
+        seconds,
+        lost,
+        keyframes: result.record.keyframes.len(),
+        loops: result.loops.len(),
+        ate: evaluation.as_ref().and_then(|e| e.ate),
+    };
     match failure {
         Some(e) => Err(e),
-        None => Ok(()),
+        None => Ok(outcome),
     }
 }
 
@@ -414,6 +510,8 @@ fn median(v: &[f64]) -> f64 {
 struct Evaluation {
     json: serde_json::Value,
     lines: Vec<String>,
+    /// ATE RMSE (m) of the live and the final trajectory, when both were evaluated.
+    ate: Option<(f64, f64)>,
 }
 
 fn evaluate(gt: &Trajectory, result: &RunResult) -> Evaluation {
@@ -461,9 +559,36 @@ fn evaluate(gt: &Trajectory, result: &RunResult) -> Evaluation {
             }),
         );
     }
+    let rmse = |name: &str| json.get(name).and_then(|v| v["ate_rmse_m"].as_f64());
+    let ate = rmse("live").zip(rmse("final"));
     Evaluation {
         json: serde_json::Value::Object(json),
         lines,
+        ate,
+    }
+}
+
+const AXES: [&str; 3] = ["x", "y", "z"];
+
+/// The two axes (in order) along which `points` spread most: the plane of a top view.
+fn top_axes(points: impl Iterator<Item = nalgebra::Vector3<f64>>) -> (usize, usize) {
+    let (mut n, mut sum, mut sq) = (0.0, nalgebra::Vector3::zeros(), nalgebra::Vector3::zeros());
+    for p in points {
+        n += 1.0;
+        sum += p;
+        sq += p.component_mul(&p);
+    }
+    if n < 2.0 {
+        return (0, 2);
+    }
+    let var = sq / n - (sum / n).component_mul(&(sum / n));
+    let least = (0..3)
+        .min_by(|&i, &j| var[i].total_cmp(&var[j]))
+        .unwrap_or(1);
+    match least {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
     }
 }
 
@@ -471,9 +596,18 @@ fn evaluate(gt: &Trajectory, result: &RunResult) -> Evaluation {
 /// edges, time per frame and per keyframe, tracked points per frame.
 fn report(out: &Path, result: &RunResult, ground_truth: Option<&Trajectory>) -> Result<()> {
     let live = result.record.trajectory();
+    // The top view: the plane of the two axes along which the path spreads most (a hand-held
+    // or driven camera moves little vertically, whichever axis a dataset calls up: y down in
+    // TUM and KITTI, z up in EuRoC and the renderer).
+    let (a, b) = top_axes(
+        ground_truth
+            .map_or(&live.world_from_body, |g| &g.world_from_body)
+            .iter()
+            .map(|p| *p.translation()),
+    );
     let xz = |p: &Se3| {
         let t = p.translation();
-        (t.x, t.z)
+        (t[a], t[b])
     };
     // Trajectories, aligned to the ground truth where there is one.
     let mut series = Vec::new();
@@ -487,11 +621,11 @@ fn report(out: &Path, result: &RunResult, ground_truth: Option<&Trajectory>) -> 
                     .map(|&(_, j)| traj.world_from_body[j])
                     .collect();
                 match ate(&r, &e, Alignment::Se3) {
-                    Ok(a) => e
+                    Ok(al) => e
                         .iter()
                         .map(|p| {
-                            let t = a.reference_from_estimate.act(p.translation());
-                            (t.x, t.z)
+                            let t = al.reference_from_estimate.act(p.translation());
+                            (t[a], t[b])
                         })
                         .collect(),
                     Err(_) => traj.world_from_body.iter().map(xz).collect(),
@@ -523,22 +657,27 @@ fn report(out: &Path, result: &RunResult, ground_truth: Option<&Trajectory>) -> 
     plot::plot(
         &out.join("trajectory.png"),
         &Figure {
-            title: "trajectory (top view, x–z), aligned to the ground truth",
-            x_label: "x (m)",
-            y_label: "z (m)",
+            title: &format!(
+                "trajectory (top view, {}–{}), aligned to the ground truth",
+                AXES[a], AXES[b]
+            ),
+            x_label: &format!("{} (m)", AXES[a]),
+            y_label: &format!("{} (m)", AXES[b]),
             equal_aspect: true,
             log_y: false,
         },
         &series,
     )?;
-    // The keyframe graph: keyframe centres, covisibility edges, loop edges.
+    // The keyframe graph: keyframe centres, covisibility edges, loop edges (in the map's
+    // frame, the first keyframe's).
     let g = &result.graph;
-    let centre = |k| {
-        g.pose(k).ok().map(|t| {
-            let c = t.inverse().act(&nalgebra::Vector3::zeros());
-            (c.x, c.z)
-        })
+    let centre3 = |k| {
+        g.pose(k)
+            .ok()
+            .map(|t| t.inverse().act(&nalgebra::Vector3::zeros()))
     };
+    let (ga, gb) = top_axes(g.keyframes().filter_map(|(k, _)| centre3(k)));
+    let centre = |k| centre3(k).map(|c| (c[ga], c[gb]));
     let mut edges = Vec::new();
     for (a, kf) in g.keyframes() {
         for &b in kf.edges().keys() {
@@ -561,8 +700,8 @@ fn report(out: &Path, result: &RunResult, ground_truth: Option<&Trajectory>) -> 
         &out.join("keyframe_graph.png"),
         &Figure {
             title: "keyframe graph (top view): covisibility edges, loop closures",
-            x_label: "x (m)",
-            y_label: "z (m)",
+            x_label: &format!("{} (m)", AXES[ga]),
+            y_label: &format!("{} (m)", AXES[gb]),
             equal_aspect: true,
             log_y: false,
         },

@@ -242,6 +242,30 @@ fn tum_rgbd_round_trip() {
     )
     .unwrap();
     assert_eq!(with_file.info().calibration, info.calibration);
+    std::fs::remove_dir_all(&out).unwrap();
+    // The camera.yaml beside rgb.txt is the sequence's calibration (no --camera needed): a
+    // smaller image has a shorter focal length than TUM's 525.
+    render(
+        &[
+            "room", "--sensor", "rgbd", "--frames", "2", "--size", "320x240",
+        ],
+        &out,
+    );
+    let small = ReadSequence::open(&out, &OpenOptions::default()).unwrap();
+    let Calibration::Rgbd { camera: c, .. } = small.info().calibration else {
+        panic!("{:?}", small.info().calibration)
+    };
+    assert_eq!((c.width, c.height, c.pinhole.fx), (320, 240, 262.5));
+    assert!(
+        small.info().warnings.is_empty(),
+        "{:?}",
+        small.info().warnings
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+    render(
+        &["room", "--sensor", "rgbd", "--frames", "4", "--seed", "3"],
+        &out,
+    );
     let mut own = truth(
         SceneKind::Room,
         SensorModel::new(SensorKind::Rgbd, 640, 480),
@@ -252,6 +276,20 @@ fn tum_rgbd_round_trip() {
         let frame = seq.read(k).unwrap().unwrap();
         let rendered = own.render_frame(k).unwrap();
         assert!((frame.timestamp - rendered.timestamp_us as f64 * 1e-6).abs() < 1e-6);
+        // What `dwslam demo` feeds the live system without writing files is what the reader
+        // delivers for the written ones (the camera too).
+        let direct = rendered.to_sequence_frame();
+        assert_eq!(
+            direct.images, frame.images,
+            "frame {k}: images on the fly and read back"
+        );
+        assert_eq!(direct.index, frame.index);
+        assert!((direct.timestamp - frame.timestamp).abs() < 1e-6);
+        assert_eq!(
+            own.config().sensor.sequence_camera(),
+            Some(info.camera),
+            "the camera of frames rendered on the fly"
+        );
         let e = pose_error(
             &frame.world_from_camera.unwrap(),
             &rendered.world_from_camera,

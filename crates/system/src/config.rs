@@ -193,10 +193,11 @@ impl Default for TrackerConfig {
 pub struct KeyframeConfig {
     /// A keyframe when the camera moved this fraction of the median scene depth away from
     /// every keyframe of `N1` (the parallax that makes a new view informative: 10 %, about
-    /// 6° at the scene).
+    /// 6° at the scene) ...
     pub parallax: f64,
-    /// ... or rotated this much (degrees) from the reference keyframe: the field of view moves
-    /// on and the reference's points leave the image.
+    /// ... or rotated this much (degrees) from every keyframe of `N1` (the field of view moves
+    /// on and their points leave the image). A keyframe within both thresholds covers the view
+    /// and no keyframe is added (`crate::keyframes::keyframe_reason`).
     pub rotation_deg: f64,
     /// ... or fewer of the candidate points than this fraction were found (the map around
     /// the camera is thin).

@@ -102,7 +102,7 @@ pub enum KeyframeReason {
     /// The camera moved `distance / depth` of the scene depth away from every keyframe of
     /// `N1`.
     Parallax(f64),
-    /// The camera rotated this many degrees away from the reference.
+    /// The camera rotated this many degrees away from every keyframe of `N1`.
     Rotation(f64),
     /// Only this fraction of the candidate points was found.
     FewFound(f64),
@@ -120,48 +120,142 @@ impl KeyframeReason {
     }
 }
 
-/// The keyframe criterion for a tracked frame with pose `camera_from_world`: `found` of the
-/// `searched` candidate points were found; `median_depth` is the median depth of the found
-/// points. (Only frames with depth become keyframes, new points need it: the caller checks.)
-pub fn keyframe_reason<const N: usize>(
+/// The keyframe nearest to a view, in the keyframe criterion's measure.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NearestKeyframe {
+    /// The keyframe.
+    pub keyframe: KeyframeId,
+    /// `max(parallax / config.parallax, rotation / config.rotation_deg)`: ≤ 1 when the
+    /// keyframe covers the view.
+    pub score: f64,
+    /// Distance between the camera centres over the scene depth.
+    pub parallax: f64,
+    /// Angle between the viewing directions, degrees.
+    pub rotation_deg: f64,
+}
+
+/// Of `keyframes`, the one nearest to the camera `camera_from_world` looking at a scene
+/// `median_depth` away: a keyframe covers the view when the camera is within `parallax` of the
+/// scene depth of it *and* within `rotation_deg` of its viewing direction, so the distance to a
+/// keyframe is the larger of the two ratios. `None` when none has a pose.
+pub fn nearest_keyframe<const N: usize>(
     config: &KeyframeConfig,
     graph: &SlamGraph<N>,
+    keyframes: &[KeyframeId],
     camera_from_world: &Sim3,
-    found: usize,
-    searched: usize,
     median_depth: f64,
-) -> Option<KeyframeReason> {
-    let reference = graph.reference()?;
+) -> Option<NearestKeyframe> {
     let centre = |t: &Sim3| t.inverse().act(&nalgebra::Vector3::zeros());
     let here = centre(camera_from_world);
-    let nearest = graph
-        .n1(reference)
-        .into_iter()
-        .filter_map(|k| graph.pose(k).ok())
-        .map(|t| (centre(&t) - here).norm())
-        .fold(f64::INFINITY, f64::min);
-    let t_ref = graph.pose(reference).ok()?;
-    let rotation = camera_from_world
-        .rotation()
-        .compose(&t_ref.rotation().inverse())
-        .log()
-        .norm()
-        .to_degrees();
-    let parallax = nearest / median_depth.max(1e-3);
-    if parallax > config.parallax {
-        return Some(KeyframeReason::Parallax(parallax));
-    }
-    if rotation > config.rotation_deg {
-        return Some(KeyframeReason::Rotation(rotation));
+    let depth = median_depth.max(1e-3);
+    keyframes
+        .iter()
+        .filter_map(|&k| graph.pose(k).ok().map(|t| (k, t)))
+        .map(|(keyframe, t)| {
+            let parallax = (centre(&t) - here).norm() / depth;
+            let rotation_deg = camera_from_world
+                .rotation()
+                .compose(&t.rotation().inverse())
+                .log()
+                .norm()
+                .to_degrees();
+            NearestKeyframe {
+                keyframe,
+                score: (parallax / config.parallax).max(rotation_deg / config.rotation_deg),
+                parallax,
+                rotation_deg,
+            }
+        })
+        .min_by(|a, b| a.score.total_cmp(&b.score))
+}
+
+/// The keyframe criterion for a tracked frame whose nearest keyframe is `nearest`
+/// ([`nearest_keyframe`] over the reference's neighbourhood): `found` of the `searched`
+/// candidate points were found. (Only frames with depth become keyframes, new points need it:
+/// the caller checks.)
+///
+/// A new keyframe is added only when no keyframe near the reference covers the view (thesis
+/// §3.3.3: "only add a new keyframe to the back-end if the distance to the closest keyframe
+/// exceeds a threshold", which bounds the map while the camera browses a bounded place,
+/// §6.5.2): a camera that turned away from its reference but looks where another nearby
+/// keyframe looked adds nothing.
+pub fn keyframe_reason(
+    config: &KeyframeConfig,
+    nearest: &NearestKeyframe,
+    found: usize,
+    searched: usize,
+) -> Option<KeyframeReason> {
+    if nearest.score > 1.0 {
+        return Some(
+            if nearest.parallax / config.parallax >= nearest.rotation_deg / config.rotation_deg {
+                KeyframeReason::Parallax(nearest.parallax)
+            } else {
+                KeyframeReason::Rotation(nearest.rotation_deg)
+            },
+        );
     }
     // Few found points call for a keyframe only once the camera moved a little (a quarter of
-    // either threshold): a still camera would otherwise add the same keyframe over and over.
-    let moved = parallax > 0.25 * config.parallax || rotation > 0.25 * config.rotation_deg;
-    if searched > 0 && moved {
+    // either threshold from the nearest keyframe): a still camera would otherwise add the same
+    // keyframe over and over.
+    if searched > 0 && nearest.score > 0.25 {
         let fraction = found as f64 / searched as f64;
         if fraction < config.min_found_fraction {
             return Some(KeyframeReason::FewFound(fraction));
         }
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lie::So3;
+    use nalgebra::Vector3;
+
+    /// A camera at `centre` turned `yaw_deg` about the vertical: its `camera_from_world`.
+    fn camera(centre: [f64; 3], yaw_deg: f64) -> Sim3 {
+        let r = So3::exp(&Vector3::new(0.0, yaw_deg.to_radians(), 0.0));
+        let c = Vector3::from(centre);
+        let world_from_camera = Sim3::new(r, c, 1.0).unwrap();
+        world_from_camera.inverse()
+    }
+
+    #[test]
+    fn a_view_another_keyframe_covers_adds_no_keyframe() {
+        let config = KeyframeConfig::default();
+        let mut graph = SlamGraph::<3>::new();
+        let reference = graph.add_keyframe(camera([0.0; 3], 0.0));
+        let other = graph.add_keyframe(camera([0.05, 0.0, 0.0], 30.0));
+        let both = [reference, other];
+        // Turned 28° away from the reference, but 2° from the other keyframe, 2.5 cm from it at
+        // 2 m depth: covered, nothing added.
+        let here = camera([0.1, 0.0, 0.0], 28.0);
+        let n = nearest_keyframe(&config, &graph, &both, &here, 2.0).unwrap();
+        assert_eq!(n.keyframe, other);
+        assert!(n.score < 1.0, "{n:?}");
+        assert_eq!(keyframe_reason(&config, &n, 100, 100), None);
+        // Without the other keyframe, the rotation calls for one.
+        let n = nearest_keyframe(&config, &graph, &[reference], &here, 2.0).unwrap();
+        assert!(matches!(
+            keyframe_reason(&config, &n, 100, 100),
+            Some(KeyframeReason::Rotation(r)) if (r - 28.0).abs() < 1e-6
+        ));
+        // Far from both (0.5 m at 2 m depth: 25 % parallax): a parallax keyframe.
+        let far = camera([0.55, 0.0, 0.0], 30.0);
+        let n = nearest_keyframe(&config, &graph, &both, &far, 2.0).unwrap();
+        assert!(matches!(
+            keyframe_reason(&config, &n, 100, 100),
+            Some(KeyframeReason::Parallax(p)) if (p - 0.25).abs() < 1e-9
+        ));
+        // Few points found: a keyframe once the camera moved a little, not when it is still.
+        let moved = camera([0.0; 3], 4.0);
+        let n = nearest_keyframe(&config, &graph, &[reference], &moved, 2.0).unwrap();
+        assert!(matches!(
+            keyframe_reason(&config, &n, 10, 100),
+            Some(KeyframeReason::FewFound(_))
+        ));
+        let n =
+            nearest_keyframe(&config, &graph, &[reference], &camera([0.0; 3], 1.0), 2.0).unwrap();
+        assert_eq!(keyframe_reason(&config, &n, 10, 100), None);
+    }
 }

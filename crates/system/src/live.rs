@@ -20,7 +20,7 @@
 use crate::association::KeyframeAssociation;
 use crate::config::SystemConfig;
 use crate::frame::{FrameData, FrameError, SensorFrontEnd};
-use crate::keyframes::{KeyframeReason, KeyframeStore, keyframe_reason};
+use crate::keyframes::{KeyframeReason, KeyframeStore, keyframe_reason, nearest_keyframe};
 use crate::loops::{AppearanceLoop, LoopCloser, LoopJob};
 use crate::tracker::{Tracked, Tracker, TrackerStats};
 use data::camera::SensorModel;
@@ -428,18 +428,35 @@ impl LiveSystem {
         } else {
             self.reuse_reference(reference, &camera_from_world, &matches)
         };
-        let reason = if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_)) {
+        let (reason, nearest) = if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_))
+        {
             let g = self.graph.read();
-            keyframe_reason(
+            // The keyframes metric loop closure would search (`N2`, thesis §6.4.1): a view one
+            // of them covers is a revisit, not a new place.
+            let hood = g.n2(reference, self.config.mapping.n2);
+            let nearest = nearest_keyframe(
                 &self.config.keyframes,
                 &g,
+                &hood,
                 &camera_from_world,
-                stats.found,
-                stats.searched,
                 median_depth,
-            )
+            );
+            let reason = nearest.as_ref().and_then(|n| {
+                keyframe_reason(&self.config.keyframes, n, stats.found, stats.searched)
+            });
+            (reason, nearest)
         } else {
-            None
+            (None, None)
+        };
+        // A revisit: the next frame tracks against the keyframe that covers this view.
+        let reference = match (&reason, &nearest) {
+            (None, Some(n))
+                if n.keyframe != reference
+                    && self.graph.write().set_reference(n.keyframe).is_ok() =>
+            {
+                n.keyframe
+            }
+            _ => reference,
         };
         let keyframe = match reason {
             Some(reason) => {

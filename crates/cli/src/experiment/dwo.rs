@@ -108,10 +108,10 @@ pub struct DwoArgs {
 }
 
 impl DwoArgs {
-    /// The demo: the monocular double loop with constant-time double window optimisation
-    /// (cDWO) and with the outer window covering the whole map (gDWO), plots and
-    /// `summary.json` into `dwslam-demo/`.
-    pub fn demo() -> Self {
+    /// The double-loop study (what `dwslam demo` ran before the live system existed):
+    /// `dwslam experiment dwo --scenario double-loop --methods cdwo,gdwo`.
+    #[cfg(test)]
+    pub fn double_loop() -> Self {
         DwoArgs {
             scenario: Scenario::DoubleLoop,
             sensor: None,
@@ -649,7 +649,7 @@ mod tests {
             let args = DwoArgs {
                 noise,
                 out: out.clone(),
-                ..DwoArgs::demo()
+                ..DwoArgs::double_loop()
             };
             let e = run(args).expect_err("a non-positive or non-finite noise must be refused");
             assert!(e.to_string().contains("--noise"), "{e}");
@@ -658,7 +658,7 @@ mod tests {
         let args = DwoArgs {
             methods: Some(Vec::new()),
             out: out.clone(),
-            ..DwoArgs::demo()
+            ..DwoArgs::double_loop()
         };
         assert!(
             run(args)

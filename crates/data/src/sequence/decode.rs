@@ -28,7 +28,7 @@ pub(crate) struct Decoder {
 
 /// Luma as the `image` crate computes it for `into_luma8` (Rec. 709 weights, integer
 /// arithmetic), so that the grey image of a colour file equals `vision::image::load_gray_u8`.
-fn luma(planes: &RgbPlanes) -> GrayImage {
+pub fn luma(planes: &RgbPlanes) -> GrayImage {
     let [r, g, b] = planes;
     GrayImage::from_fn(r.width(), r.height(), |u, v| {
         ((2126 * r.get(u, v) as u32 + 7152 * g.get(u, v) as u32 + 722 * b.get(u, v) as u32) / 10000)

@@ -5,7 +5,7 @@
 //!
 //! | format | layout | sensor |
 //! |---|---|---|
-//! | TUM RGB-D | `rgb.txt`, `depth.txt`, `groundtruth.txt` (7-Scenes: `+ camera-intrinsics.txt`, `groundtruth_tum.txt`) | RGB-D |
+//! | TUM RGB-D | `rgb.txt`, `depth.txt`, `groundtruth.txt` (7-Scenes: `+ camera-intrinsics.txt`, `groundtruth_tum.txt`; a `camera.yaml` beside them is the calibration) | RGB-D |
 //! | EuRoC MAV | `mav0/cam0/data.csv`, `mav0/cam1/data.csv`, `sensor.yaml`s, `mav0/state_groundtruth_estimate0/data.csv` | stereo |
 //! | KITTI odometry | `calib.txt`, `image_0/` + `image_1/` (or `image_l/` + `image_r/`), `times.txt`, `poses.txt` | stereo |
 //! | image folder | a camera file (`camera.yaml` or one `*.yaml`) + images (`images/` or the folder itself), `left/` + `right/`, or `rgb/` + `depth/` | mono, stereo, RGB-D |
@@ -27,6 +27,7 @@ mod reader;
 pub mod rectify;
 mod tum;
 
+pub use decode::luma;
 pub use reader::{DEFAULT_QUEUE_LENGTH, Reader, ReaderStats};
 pub use tum::{TUM_DEPTH_UNITS_PER_METRE, TumCamera, tum_camera};
 

@@ -14,7 +14,7 @@ use crate::camera::{
     Calibration, CameraIntrinsics, DEFAULT_VIRTUAL_BASELINE, DepthCalibration, LensDistortion,
     SensorKind,
 };
-use crate::camera_file::CameraFile;
+use crate::camera_file::{CameraFile, read_camera_file};
 use crate::error::{DataError, ParseErrorKind};
 use crate::text::read_to_string;
 use crate::trajectory::{Trajectory, associate_unique, read_tum};
@@ -149,6 +149,21 @@ pub(crate) fn open(
     } else {
         SensorKind::Mono
     };
+    // A `camera.yaml` beside `rgb.txt` (what `dwslam render` writes; TUM itself publishes its
+    // calibrations on its web page) is the sequence's own calibration; `--camera` overrides it.
+    let own_file = match override_ {
+        Some(_) => None,
+        None => {
+            let p = root.join("camera.yaml");
+            if p.is_file() {
+                let c = read_camera_file(&p)?;
+                Some((p, c))
+            } else {
+                None
+            }
+        }
+    };
+    let override_ = override_.or(own_file.as_ref().map(|(p, c)| (p.as_path(), c)));
     let calibration = calibration_or(override_, kind, size, || {
         let (camera, units_per_metre) = if seven_scenes.is_file() {
             let k = lists::parse_intrinsics_matrix(&read_to_string(&seven_scenes)?, &seven_scenes)?;

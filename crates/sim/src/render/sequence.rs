@@ -5,6 +5,10 @@ use super::paths::{BuildingWalk, CameraPath, CourtyardLaps, RoomBrowse};
 use super::raycast::ViewOptions;
 use super::sensor::{self, FrameImages, SensorKind, SensorModel};
 use super::{RenderError, Renderer, worlds};
+use data::camera::{DEFAULT_VIRTUAL_BASELINE, SensorModel as DataSensor};
+use data::dataset_writer::{TUM_DEPTH_SCALE, tum_depth_value};
+use data::sequence::{DepthImage, Frame as SequenceFrame, FrameImages as SequenceImages, luma};
+use geom::{RgbdCamera, StereoCamera};
 use lie::{LieGroup, Se3};
 use vision::image::{GrayImage, Image};
 
@@ -101,6 +105,66 @@ pub struct Frame {
     pub gain: f64,
     /// The images.
     pub images: FrameImages,
+}
+
+impl Frame {
+    /// The frame as the sequence readers deliver it (`data::sequence::Frame`), so that the live
+    /// system can run on frames rendered on the fly exactly as on the files `dwslam render`
+    /// writes: colour as three planes with their luma, depth quantised as the TUM files store it
+    /// (`1/5000` m, 0 = none), the timestamp in seconds, the ground truth attached. A frame read
+    /// back from a written TUM or EuRoC sequence equals this one.
+    pub fn to_sequence_frame(&self) -> SequenceFrame {
+        let images = match &self.images {
+            FrameImages::Mono(image) => SequenceImages::Mono {
+                image: image.clone(),
+                colour: None,
+            },
+            FrameImages::Stereo { left, right } => SequenceImages::Stereo {
+                left: left.clone(),
+                right: right.clone(),
+            },
+            FrameImages::Rgbd { rgb, depth } => {
+                let planes = [0, 1, 2].map(|c| rgb.map(|p| p[c]));
+                SequenceImages::Rgbd {
+                    image: luma(&planes),
+                    colour: Some(planes),
+                    depth: Some(DepthImage {
+                        raw: depth.map(tum_depth_value),
+                        metres_per_unit: 1.0 / TUM_DEPTH_SCALE,
+                        max_valid_raw: u16::MAX,
+                    }),
+                }
+            }
+        };
+        SequenceFrame {
+            index: self.index,
+            timestamp: self.timestamp_us as f64 * 1e-6,
+            images,
+            world_from_camera: Some(self.world_from_camera),
+        }
+    }
+}
+
+impl SensorModel {
+    /// The camera the live system is given for this sensor, as the sequence readers would
+    /// report it for the written files (an RGB-D sensor as virtual stereo with the default
+    /// baseline). `None` for a distorted camera: rendered frames are not undistorted on the
+    /// fly (write them with `dwslam render` and read them back, which undistorts).
+    pub fn sequence_camera(&self) -> Option<DataSensor> {
+        if self.camera.distortion.is_some() {
+            return None;
+        }
+        let pinhole = self.camera.pinhole;
+        Some(match self.kind {
+            SensorKind::Mono => DataSensor::Mono(pinhole),
+            SensorKind::Stereo { baseline } => {
+                DataSensor::Stereo(StereoCamera::new(pinhole, baseline))
+            }
+            SensorKind::Rgbd => {
+                DataSensor::Rgbd(RgbdCamera::new(pinhole, DEFAULT_VIRTUAL_BASELINE))
+            }
+        })
+    }
 }
 
 /// A sequence being rendered (see the module notes). Frames can be rendered in any order; the
