@@ -3,7 +3,9 @@
 # sequences in one run, each pinned to one core, ATE by evo_ape -a; prints a markdown table
 # (also written to OUT/table.md).
 #   bench/live/run.sh [OUT]      env: ORB_RUNS (default 3), DWSLAM_DATA, LIVE_PEERS_VENV,
-#                                     DWSLAM_BUILD_LOCK (a lock file serialising builds/timings)
+#                                     DWSLAM_BUILD_LOCK (a lock file serialising builds/timings),
+#                                     RENDERED (folder of the rendered sequences, rendered there
+#                                     when missing, ~8 GB; default OUT/rendered; "none" skips them)
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
 ROOT=$(cd "$HERE/../.." && pwd)
@@ -17,4 +19,5 @@ lock cargo build -q --release -p dwslam --manifest-path "$ROOT/Cargo.toml"
 DWSLAM_DATA=$DATA bash "$PEERS/setup.sh" >/dev/null
 export DWSLAM_DATA=$DATA OMP_NUM_THREADS=1
 lock "$V/bin/python" "$HERE/run.py" --dwslam "$ROOT/target/release/dwslam" --data "$DATA" \
-  --peers "$PEERS" --venv "$V" --out "$OUT" --orb-runs "${ORB_RUNS:-3}"
+  --peers "$PEERS" --venv "$V" --out "$OUT" --orb-runs "${ORB_RUNS:-3}" \
+  $( [ "${RENDERED:-}" = none ] || echo --rendered "${RENDERED:-$OUT/rendered}" )

@@ -74,6 +74,9 @@ pub struct RunArgs {
 /// Per frame: the tracker's counts and times (CSV).
 pub const FRAME_STATS_FILE: &str = "frames.csv";
 
+/// Per optimisation (one per keyframe): window sizes, problem size and times (CSV).
+pub const OPTIMISATION_STATS_FILE: &str = "optimisations.csv";
+
 /// The dense model of `--dense-ply`.
 pub const DENSE_FILE: &str = "dense.ply";
 
@@ -425,6 +428,7 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         }
     }
     write_frame_stats(&settings.out.join(FRAME_STATS_FILE), &result)?;
+    write_optimisation_stats(&settings.out.join(OPTIMISATION_STATS_FILE), &result)?;
     if settings.dense_ply {
         let (camera, config) = &dense_config;
         let t = Instant::now();
@@ -484,6 +488,31 @@ fn write_frame_stats(path: &Path, result: &RunResult) -> Result<()> {
             s.inliers,
             f.time_tracking.as_secs_f64() * 1e3,
             f.time.as_secs_f64() * 1e3
+        );
+    }
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+fn write_optimisation_stats(path: &Path, result: &RunResult) -> Result<()> {
+    use std::fmt::Write as _;
+    let mut text = String::from(
+        "optimisation,inner_keyframes,outer_keyframes,points,point_constraints,pose_constraints,setup_ms,structure_ms,joint_ms,apply_ms,total_ms\n",
+    );
+    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    for (i, s) in result.optimisations.iter().enumerate() {
+        let _ = writeln!(
+            text,
+            "{i},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3}",
+            s.inner_frames,
+            s.outer_frames,
+            s.points,
+            s.point_constraints,
+            s.pose_constraints,
+            ms(s.time_setup),
+            ms(s.time_structure),
+            ms(s.time_joint),
+            ms(s.time_apply),
+            ms(s.total())
         );
     }
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))

@@ -119,6 +119,7 @@ fn a_short_run_writes_every_output() {
         "map.ply",
         "summary.json",
         "frames.csv",
+        "optimisations.csv",
         "trajectory.png",
         "keyframe_graph.png",
         "time_per_frame.png",
