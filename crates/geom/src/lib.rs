@@ -22,7 +22,11 @@
 //! - [`ransac`]: seeded RANSAC generic over minimal solvers, with the 3-point similarity of
 //!   thesis eq. 5.9–5.14;
 //! - [`two_view`]: normalised 8-point essential matrix, pose recovery with the cheirality
-//!   check, triangulation, 8-point RANSAC relative pose (thesis §3.5).
+//!   check, triangulation, 8-point RANSAC relative pose (thesis §3.5);
+//! - [`homography`]: the normalised DLT, transfer and Sampson errors, 4-point RANSAC and the
+//!   decomposition into `(R, t/d, n)`;
+//! - [`bootstrap`]: the monocular two-view bootstrap choosing between the homography and the
+//!   essential matrix by Torr's GRIC, with typed "too little parallax" / "ambiguous" states.
 //!
 //! Points behind a camera are reported as [`CameraError::BehindCamera`], never projected.
 
@@ -30,7 +34,9 @@
 
 pub mod align;
 mod bal;
+pub mod bootstrap;
 mod distortion;
+pub mod homography;
 mod pinhole;
 pub mod ransac;
 mod stereo;

@@ -21,11 +21,14 @@ use nalgebra::{DMatrix, Matrix3, Rotation3, UnitQuaternion, Vector2, Vector3};
 /// Why a two-view problem could not be solved.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TwoViewError {
-    /// Fewer than 8 correspondences.
-    #[error("the 8-point algorithm needs at least 8 correspondences, got {count}")]
+    /// Fewer correspondences than the solver needs (8 for the essential matrix, 4 for a
+    /// homography).
+    #[error("the solver needs at least {needed} correspondences, got {count}")]
     TooFewPoints {
         /// Number given.
         count: usize,
+        /// Number needed.
+        needed: usize,
     },
     /// The two point lists differ in length.
     #[error("{a} points in the first view but {b} in the second")]
@@ -56,11 +59,36 @@ pub enum TwoViewError {
         /// Points tested.
         total: usize,
     },
+    /// The rays of the two views are too close to parallel for a reliable structure: the
+    /// median angle between them is below the required one (pure rotation or too short a
+    /// baseline). A live system keeps tracking and tries again with a later frame.
+    #[error(
+        "too little parallax: median ray angle {median_parallax:.5} rad, need {required:.5} rad"
+    )]
+    TooLittleParallax {
+        /// The median parallax of the inliers (radians).
+        median_parallax: f64,
+        /// The required median parallax (radians).
+        required: f64,
+    },
+    /// A configuration value is unusable (named in the message).
+    #[error("invalid two-view configuration: {0}")]
+    InvalidConfig(&'static str),
+    /// Two candidate motions explain the correspondences almost equally well (the two-fold
+    /// ambiguity of a homography seen from afar, or noise at a weak baseline): no choice is
+    /// safe.
+    #[error("ambiguous motion: the two best candidates triangulate {best} and {second} points")]
+    Ambiguous {
+        /// Well triangulated points of the best candidate.
+        best: usize,
+        /// Well triangulated points of the runner-up.
+        second: usize,
+    },
 }
 
 /// The similarity `T` of the plane (translation to the centroid, isotropic scaling to mean
 /// distance `√2`) of Hartley's normalisation, as a 3×3 matrix on homogeneous points.
-fn hartley_normalisation(points: &[Vector2<f64>]) -> Option<Matrix3<f64>> {
+pub(crate) fn hartley_normalisation(points: &[Vector2<f64>]) -> Option<Matrix3<f64>> {
     let n = points.len() as f64;
     let c = points.iter().sum::<Vector2<f64>>() / n;
     let mean_dist = points.iter().map(|p| (p - c).norm()).sum::<f64>() / n;
@@ -102,19 +130,27 @@ pub fn essential_eight_point(
     m_a: &[Vector2<f64>],
     m_b: &[Vector2<f64>],
 ) -> Result<Matrix3<f64>, TwoViewError> {
-    check_correspondences(m_a, m_b)?;
+    check_correspondences(m_a, m_b, 8)?;
     weighted_eight_point(m_a, m_b, None)
 }
 
-fn check_correspondences(m_a: &[Vector2<f64>], m_b: &[Vector2<f64>]) -> Result<(), TwoViewError> {
+/// Checks that `m_a` and `m_b` pair up, hold at least `needed` correspondences and are finite.
+pub(crate) fn check_correspondences(
+    m_a: &[Vector2<f64>],
+    m_b: &[Vector2<f64>],
+    needed: usize,
+) -> Result<(), TwoViewError> {
     if m_a.len() != m_b.len() {
         return Err(TwoViewError::LengthMismatch {
             a: m_a.len(),
             b: m_b.len(),
         });
     }
-    if m_a.len() < 8 {
-        return Err(TwoViewError::TooFewPoints { count: m_a.len() });
+    if m_a.len() < needed {
+        return Err(TwoViewError::TooFewPoints {
+            count: m_a.len(),
+            needed,
+        });
     }
     for (index, (a, b)) in m_a.iter().zip(m_b).enumerate() {
         if !(a.iter().chain(b.iter()).all(|v| v.is_finite())) {
@@ -149,21 +185,31 @@ fn weighted_eight_point(
             }
         }
     }
+    let e_hat = null_matrix(a, "the epipolar constraints do not determine E")?;
+    let e = tb.transpose() * e_hat * ta;
+    Ok(project_to_essential(&e))
+}
+
+/// The least-squares null vector of a constraint matrix `a` (at least 9 rows, 9 columns: the
+/// SVD then returns the full right singular basis) as a 3×3 matrix in row-major order, or
+/// [`TwoViewError::Degenerate`] with `what` when the null space is not one-dimensional (the
+/// second smallest singular value vanishes).
+pub(crate) fn null_matrix(
+    a: DMatrix<f64>,
+    what: &'static str,
+) -> Result<Matrix3<f64>, TwoViewError> {
     let svd = a.svd(false, true);
     let v_t = svd.v_t.expect("requested");
     let sv = &svd.singular_values;
     let mut order: Vec<usize> = (0..sv.len()).collect();
     order.sort_by(|&x, &y| sv[x].total_cmp(&sv[y]));
-    // A one-dimensional null space: the second smallest singular value must not vanish.
     if sv[order[1]] <= 1e-10 * sv[order[sv.len() - 1]] {
-        return Err(TwoViewError::Degenerate(
-            "the epipolar constraints do not determine E",
-        ));
+        return Err(TwoViewError::Degenerate(what));
     }
     let f = v_t.row(order[0]);
-    let e_hat = Matrix3::new(f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8]);
-    let e = tb.transpose() * e_hat * ta;
-    Ok(project_to_essential(&e))
+    Ok(Matrix3::new(
+        f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8],
+    ))
 }
 
 fn sampson_denominator(e: &Matrix3<f64>, m_a: &Vector2<f64>, m_b: &Vector2<f64>) -> f64 {
@@ -491,20 +537,7 @@ pub fn relative_pose_ransac(
     pixel_scale: f64,
     config: &RansacConfig,
 ) -> Result<RelativePose, TwoViewError> {
-    if m_a.len() != m_b.len() {
-        return Err(TwoViewError::LengthMismatch {
-            a: m_a.len(),
-            b: m_b.len(),
-        });
-    }
-    for (index, (a, b)) in m_a.iter().zip(m_b).enumerate() {
-        if !(a.iter().chain(b.iter()).all(|v| v.is_finite())) {
-            return Err(TwoViewError::NotFinite { index });
-        }
-    }
-    if m_a.len() < 8 {
-        return Err(TwoViewError::TooFewPoints { count: m_a.len() });
-    }
+    check_correspondences(m_a, m_b, 8)?;
     let est = EssentialEstimator {
         m_a,
         m_b,
@@ -607,7 +640,7 @@ mod tests {
         assert!(rot < 1e-6 && dir < 1e-6);
         assert!(matches!(
             essential_eight_point(&m_a[..7], &m_b[..7]),
-            Err(TwoViewError::TooFewPoints { count: 7 })
+            Err(TwoViewError::TooFewPoints { count: 7, .. })
         ));
         let same = vec![Vector2::new(0.1, 0.2); 10];
         assert!(matches!(
