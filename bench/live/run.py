@@ -114,8 +114,10 @@ def dwslam(name, args, core, deterministic):
     }
 
 
-def peer(kind, seq, extra, core=1):
-    out = os.path.join(a.out, f"{kind}-{seq}")
+def peer(kind, name, seq, extra, run=0, core=1):
+    # One folder per sequence and run (the rendered stereo sequences share run_peer.py's
+    # KITTI-folder reader, so its sequence name alone would not tell them apart).
+    out = os.path.join(a.out, f"{kind}-" + re.sub(r"\W+", "_", name) + f"-{run}")
     cmd = ["taskset", "-c", str(core), py, os.path.join(a.peers, "run_peer.py"), kind, seq, out, "--data", a.data, *extra]
     p = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PATH": os.path.join(a.venv, "bin") + ":" + os.environ["PATH"]})
     lines = [l for l in p.stdout.splitlines() if l.startswith("{")]
@@ -141,7 +143,7 @@ for name, args, seq, extra, o3d in SEQUENCES:
     table.append(f"| | dwslam (threaded) | {fmt(thr.get('ate_live'))} | {fmt(thr.get('ate_final'))} | "
                  f"{thr.get('tracked', 0) * 100:.0f} % | | | {thr.get('fps', 0):.1f} |")
     if seq:
-        runs = [peer("orbslam3", seq, extra) for _ in range(a.orb_runs)]
+        runs = [peer("orbslam3", name, seq, extra, run) for run in range(a.orb_runs)]
         results[name]["orbslam3"] = runs
         ok = [r for r in runs if "ate_rmse_m" in r and r["ate_rmse_m"] is not None]
         if ok:
@@ -153,7 +155,7 @@ for name, args, seq, extra, o3d in SEQUENCES:
                          f"{min(r['tracked_frac'] for r in ok) * 100:.0f}–{max(r['tracked_frac'] for r in ok) * 100:.0f} % | {ms:.1f} | "
                          f"{ms / ours_ms:.2f} | |" if ours_ms else "")
     if o3d:
-        r = peer("open3d", seq, [])
+        r = peer("open3d", name, seq, [])
         results[name]["open3d"] = r
         if r.get("ate_rmse_m") is not None:
             table.append(f"| | Open3D RGB-D odometry | {fmt(r['ate_rmse_m'])} | — | {r['tracked_frac'] * 100:.0f} % | "
