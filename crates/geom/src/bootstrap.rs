@@ -549,6 +549,8 @@ mod tests {
             };
             let (m_a, m_b) = views(&mut rng, &b_from_a, &pts, SIGMA, true);
             let r = bootstrap_pose(&m_a, &m_b, &config(trial)).unwrap();
+            // Seeded: the same input gives the same bootstrap.
+            assert_eq!(r, bootstrap_pose(&m_a, &m_b, &config(trial)).unwrap());
             let homography = matches!(r.model, TwoViewModel::Homography { .. });
             assert_eq!(
                 homography, planar,
