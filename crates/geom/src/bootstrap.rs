@@ -5,9 +5,11 @@
 //!
 //! [`bootstrap_pose`]:
 //!
-//! 1. fits both models robustly with [`crate::ransac::ransac`]: the homography by
-//!    [`HomographyEstimator`] (gate `σ·√(2·χ²₂(p))` on the RMS transfer distance), the essential
-//!    matrix by [`EssentialEstimator`] (gate `σ·√(χ²₁(p))` on the Sampson distance);
+//! 1. fits both models robustly with [`crate::ransac::ransac`]: the essential matrix by
+//!    [`EssentialEstimator`] (gate `σ·√(χ²₁(p))` on the Sampson distance), then the homography
+//!    by [`HomographyEstimator`] (gate `σ·√(2·χ²₂(p))` on the RMS transfer distance) with as
+//!    many samples as the essential matrix's inlier ratio requires of a 4-point sample (a
+//!    plane that could win explains as many points);
 //! 2. selects the model by Torr's geometric robust information criterion (GRIC; Torr 1998,
 //!    *Geometric motion segmentation and model selection*, Phil. Trans. R. Soc. A 356; Torr
 //!    2002, IJCV 50(1) §7), a penalised log-likelihood:
@@ -43,7 +45,7 @@
 //! the points are in frame a in that unit.
 
 use crate::homography::{Homography, HomographyEstimator, decompose_homography};
-use crate::ransac::{RansacConfig, RansacResult, ransac};
+use crate::ransac::{Estimator, RansacConfig, RansacResult, ransac, required_iterations};
 use crate::two_view::{
     EssentialEstimator, TwoViewError, check_correspondences, decompose_essential, sampson_distance,
     triangulate,
@@ -278,17 +280,30 @@ pub fn bootstrap_pose(
         m_b,
         pixel_scale: f,
     };
-    let h_fit = ransac(
-        &h_est,
-        &RansacConfig {
-            threshold: sigma * (2.0 * config.chi2_two_dof).sqrt(),
-            ..config.ransac
-        },
-    );
     let e_fit = ransac(
         &e_est,
         &RansacConfig {
             threshold: sigma * config.chi2_one_dof.sqrt(),
+            ..config.ransac
+        },
+    );
+    // The homography only has to be found when it explains about as many points as the
+    // epipolar geometry (a plane explains the same points under both models): the samples
+    // that find an all-inlier 4-sample at the essential matrix's inlier ratio with confidence
+    // `p` suffice. Without an essential matrix (e.g. the 8-point algorithm degenerate on an
+    // exact plane) the full budget is used.
+    let h_iterations = e_fit.as_ref().map_or(config.ransac.max_iterations, |r| {
+        required_iterations(
+            r.inliers.len() as f64 / n as f64,
+            h_est.sample_size(),
+            config.ransac.confidence,
+        )
+    });
+    let h_fit = ransac(
+        &h_est,
+        &RansacConfig {
+            threshold: sigma * (2.0 * config.chi2_two_dof).sqrt(),
+            max_iterations: h_iterations.clamp(1, config.ransac.max_iterations),
             ..config.ransac
         },
     );
