@@ -482,21 +482,9 @@ fn hsv(h: f32, s: f32, v: f32) -> [u8; 3] {
     [(r * 255.0) as u8, (g * 255.0) as u8, (b * 255.0) as u8]
 }
 
-fn detect_spread(img: &GrayImage, pyr: &Pyramid, n: usize) -> Vec<[f32; 2]> {
-    let corners = vision::fast::fast9(&pyr.levels[0], 20, true);
-    let scored = with_shi_tomasi(img, &corners, 3);
-    let pts: Vec<QuadPoint> = scored
-        .iter()
-        .enumerate()
-        .map(|(i, c)| QuadPoint {
-            u: c.u,
-            v: c.v,
-            score: c.score,
-            index: i,
-        })
-        .collect();
-    QuadTree::from_points(img.width() as f32, img.height() as f32, 8.0, &pts)
-        .select(n, 0)
+fn detect_spread(img: &GrayImage, n: usize) -> Vec<[f32; 2]> {
+    vision::quadtree::select_corners(img, 20, n, 8.0)
+        .1
         .iter()
         .map(|q| [q.u, q.v])
         .collect()
@@ -525,7 +513,7 @@ fn track(dir: &Path, out: &Path, max_frames: usize, n: usize) -> Result<()> {
     let mut prev_img = load(&files[0])?;
     let mut prev = Pyramid::new(&prev_img, params.levels, 8).context("pyramid")?;
     // Each track: its history of positions.
-    let mut tracks: Vec<Vec<[f32; 2]>> = detect_spread(&prev_img, &prev, n)
+    let mut tracks: Vec<Vec<[f32; 2]>> = detect_spread(&prev_img, n)
         .into_iter()
         .map(|p| vec![p])
         .collect();
@@ -571,7 +559,7 @@ fn track(dir: &Path, out: &Path, max_frames: usize, n: usize) -> Result<()> {
             .collect();
         let survived = kept.len();
         if kept.len() < n / 2 {
-            for p in detect_spread(&img, &next, n - kept.len()) {
+            for p in detect_spread(&img, n - kept.len()) {
                 kept.push(vec![p]);
             }
         }

@@ -238,16 +238,7 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
             }
         }
         let corners = self.frame.corners.corners();
-        let candidates: Vec<QuadPoint> = corners
-            .iter()
-            .enumerate()
-            .map(|(i, c)| QuadPoint {
-                u: c.u,
-                v: c.v,
-                score: c.score,
-                index: i,
-            })
-            .collect();
+        let candidates = vision::quadtree::quad_points(corners);
         let tree = QuadTree::from_points(w as f32, h as f32, min_cell, &candidates);
         let r = self.spacing as f32;
         let mut out = Vec::new();

@@ -10,6 +10,7 @@
 #![warn(missing_docs)]
 
 pub mod association;
+pub mod bootstrap;
 pub mod config;
 pub mod dense_model;
 pub mod frame;

@@ -6,6 +6,8 @@
 //! a leaf receiving a second point splits, unless it is already at the minimum cell size, in
 //! which case it keeps the higher-scoring point (this bounds the point density, thesis §3.4.3).
 
+use crate::fast::{Corner, fast9, with_shi_tomasi};
+use crate::image::GrayImage;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -256,6 +258,36 @@ impl Iterator for EquiDistributedTraversal<'_> {
             }
         }
     }
+}
+
+/// Corners as quadtree points: position and score, `index` their position in `corners`.
+pub fn quad_points(corners: &[Corner]) -> Vec<QuadPoint> {
+    corners
+        .iter()
+        .enumerate()
+        .map(|(i, c)| QuadPoint {
+            u: c.u,
+            v: c.v,
+            score: c.score,
+            index: i,
+        })
+        .collect()
+}
+
+/// Corners to track: FAST-9 at `threshold` on the full image (non-maximum suppressed), scored
+/// by Shi-Tomasi (3 × 3 window radius), spread by the equi-distributed traversal (thesis Alg. 2,
+/// cells ≥ `min_cell` pixels) to at most `count`. Returns the number of FAST corners and the
+/// selection (`index` is the corner's position among the FAST corners).
+pub fn select_corners(
+    img: &GrayImage,
+    threshold: u8,
+    count: usize,
+    min_cell: f32,
+) -> (usize, Vec<QuadPoint>) {
+    let corners = fast9(img, threshold, true);
+    let points = quad_points(&with_shi_tomasi(img, &corners, 3));
+    let tree = QuadTree::from_points(img.width() as f32, img.height() as f32, min_cell, &points);
+    (corners.len(), tree.select(count, 0))
 }
 
 #[cfg(test)]

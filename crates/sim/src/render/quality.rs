@@ -7,11 +7,10 @@ use super::raycast::reference_depth;
 use super::scene::Scene;
 use lie::{LieGroup, Se3};
 use nalgebra::{Vector2, Vector3};
-use vision::fast::{fast9, with_shi_tomasi};
 use vision::image::GrayImage;
 use vision::lk::{LkParams, track};
 use vision::pyramid::Pyramid;
-use vision::quadtree::{QuadPoint, QuadTree};
+use vision::quadtree::{QuadPoint, select_corners};
 
 /// The FAST threshold of the front-end (`dwslam inspect features` and its tracking use 20 on
 /// 8-bit images).
@@ -30,20 +29,7 @@ pub const COVERAGE_DEPTH: u32 = 3;
 /// the quadtree's equi-distributed traversal (thesis Alg. 2, cells ≥ [`MIN_CELL`]) to
 /// [`SELECTED`] features. Returns the number of FAST corners and the selection.
 pub fn select_features(img: &GrayImage) -> (usize, Vec<QuadPoint>) {
-    let corners = fast9(img, FAST_THRESHOLD, true);
-    let scored = with_shi_tomasi(img, &corners, 3);
-    let points: Vec<QuadPoint> = scored
-        .iter()
-        .enumerate()
-        .map(|(i, c)| QuadPoint {
-            u: c.u,
-            v: c.v,
-            score: c.score,
-            index: i,
-        })
-        .collect();
-    let tree = QuadTree::from_points(img.width() as f32, img.height() as f32, MIN_CELL, &points);
-    (corners.len(), tree.select(SELECTED, 0))
+    select_corners(img, FAST_THRESHOLD, SELECTED, MIN_CELL)
 }
 
 /// Trackability of one frame pair.
