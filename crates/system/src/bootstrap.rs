@@ -7,7 +7,12 @@
 //! plane); when the tracks thin out before that, it restarts from the current frame.
 //!
 //! This is the first stage of the monocular live system; the map it starts (two keyframes and
-//! the triangulated points) is what the monocular tracker will take over.
+//! the triangulated points) is what the monocular tracker will take over. Where it goes next:
+//! `slam::exploration::MonoExplorer` already bootstraps simulated tracks (essential matrix
+//! only, `relative_pose_ransac`, then a two-view BA). The live monocular system must have one
+//! bootstrap: `MonoExplorer`'s should take `geom::bootstrap::bootstrap_pose` (re-running the
+//! scale-drift experiments that use it), and this module should shrink to the image side —
+//! the LK tracks it feeds to `MonoExplorer` — rather than decide on its own.
 
 use geom::PinholeCamera;
 use geom::bootstrap::{BootstrapConfig, TwoViewBootstrap, TwoViewModel, bootstrap_pose};
