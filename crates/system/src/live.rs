@@ -318,7 +318,7 @@ impl LiveSystem {
     /// Processes one frame.
     pub fn process(&mut self, frame: data::sequence::Frame) -> Result<FrameReport, SystemError> {
         let start = Instant::now();
-        let (index, timestamp) = (frame.index, frame.timestamp);
+        let index = frame.index;
         let t = Instant::now();
         let frame = Arc::new(self.sensor.prepare(frame)?);
         self.record
@@ -336,7 +336,6 @@ impl LiveSystem {
         };
         self.record.timings.record("frame: total", report.time);
         debug_assert_eq!(self.record.frames.last().map(|f| f.index), Some(index));
-        let _ = timestamp;
         self.reports.push(report.clone());
         Ok(report)
     }
@@ -362,16 +361,11 @@ impl LiveSystem {
 
     fn initialise(&mut self, frame: &Arc<FrameData>) -> Result<FrameReport, SystemError> {
         if frame.depth.is_none() {
-            let state = TrackingState::Lost("no depth image to start the map from".into());
-            self.push_frame(frame, None, state.clone(), None);
-            return Ok(FrameReport {
-                index: frame.index,
-                state,
-                keyframe: None,
-                stats: None,
-                time: Duration::ZERO,
-                time_tracking: Duration::ZERO,
-            });
+            return Ok(self.lost(
+                frame,
+                "no depth image to start the map from",
+                Duration::ZERO,
+            ));
         }
         let pose = Sim3::identity();
         let keyframe = self.make_keyframe(frame, pose, Vec::new())?;
@@ -395,16 +389,7 @@ impl LiveSystem {
         let tracked = self.tracker.track(&self.graph, &store, frame);
         drop(store);
         let Some(tracked) = tracked else {
-            let state = TrackingState::Lost("no reference keyframe to track against".into());
-            self.push_frame(frame, None, state.clone(), None);
-            return Ok(FrameReport {
-                index: frame.index,
-                state,
-                keyframe: None,
-                stats: None,
-                time: Duration::ZERO,
-                time_tracking: t.elapsed(),
-            });
+            return Ok(self.lost(frame, "no reference keyframe to track against", t.elapsed()));
         };
         let time_tracking = t.elapsed();
         for (stage, d) in &tracked.timings {
@@ -519,6 +504,20 @@ impl LiveSystem {
         match best {
             Some(k) if self.graph.write().set_reference(k).is_ok() => k,
             _ => reference,
+        }
+    }
+
+    /// Records a frame without a pose, lost for `reason`, and its report.
+    fn lost(&mut self, frame: &FrameData, reason: &str, time_tracking: Duration) -> FrameReport {
+        let state = TrackingState::Lost(reason.into());
+        self.push_frame(frame, None, state.clone(), None);
+        FrameReport {
+            index: frame.index,
+            state,
+            keyframe: None,
+            stats: None,
+            time: Duration::ZERO,
+            time_tracking,
         }
     }
 

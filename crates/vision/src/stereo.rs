@@ -80,23 +80,12 @@ pub fn census_transform(img: &GrayImage, radius: usize) -> Image<u64> {
     })
 }
 
-/// Computes the left disparity image of a rectified pair (`u_r = u_l − d`); invalid pixels
-/// (no unique match, failed left-right check, or no candidate) are `NaN`.
-///
-/// Row-streaming implementation: pixel costs of the `2r + 2` rows a vertical box sum needs are
-/// kept in a ring, the block sums are updated incrementally (`+` the entering row / column, `−`
-/// the leaving one), the shiftable-window minima of `2s + 1` rows in a second ring, so memory
-/// is `O(w·D·(r + s))` instead of `O(h·w·D)`. All costs are integers, so the result does not
-/// depend on the order of the sums: it equals the straightforward volume-based computation
-/// bit for bit (tested). Census and Hamming costs have AVX2 kernels (runtime dispatch) beside
-/// their scalar references.
-///
-/// Errors if the images differ in size or are smaller than one block.
-pub fn block_match(
+/// The pair's size, checked: both images the same size and at least one block.
+fn check_pair(
     left: &GrayImage,
     right: &GrayImage,
     params: &StereoParams,
-) -> Result<Image<f32>, ImageError> {
+) -> Result<(usize, usize), ImageError> {
     if left.width() != right.width() || left.height() != right.height() {
         return Err(ImageError::SizeMismatch(
             left.width(),
@@ -114,6 +103,27 @@ pub fn block_match(
             what: format!("stereo block matching with {0}×{0} blocks", 2 * br + 1),
         });
     }
+    Ok((w, h))
+}
+
+/// Computes the left disparity image of a rectified pair (`u_r = u_l − d`); invalid pixels
+/// (no unique match, failed left-right check, or no candidate) are `NaN`.
+///
+/// Row-streaming implementation: pixel costs of the `2r + 2` rows a vertical box sum needs are
+/// kept in a ring, the block sums are updated incrementally (`+` the entering row / column, `−`
+/// the leaving one), the shiftable-window minima of `2s + 1` rows in a second ring, so memory
+/// is `O(w·D·(r + s))` instead of `O(h·w·D)`. All costs are integers, so the result does not
+/// depend on the order of the sums: it equals the straightforward volume-based computation
+/// bit for bit (tested). Census and Hamming costs have AVX2 kernels (runtime dispatch) beside
+/// their scalar references.
+///
+/// Errors if the images differ in size or are smaller than one block.
+pub fn block_match(
+    left: &GrayImage,
+    right: &GrayImage,
+    params: &StereoParams,
+) -> Result<Image<f32>, ImageError> {
+    check_pair(left, right, params)?;
     #[cfg(target_arch = "x86_64")]
     if crate::simd::avx2() {
         // SAFETY: the CPU supports AVX2 (checked just above).
@@ -768,23 +778,8 @@ mod tests {
             right: &GrayImage,
             params: &StereoParams,
         ) -> Result<Image<f32>, ImageError> {
-            if left.width() != right.width() || left.height() != right.height() {
-                return Err(ImageError::SizeMismatch(
-                    left.width(),
-                    left.height(),
-                    right.width(),
-                    right.height(),
-                ));
-            }
-            let (w, h) = (left.width(), left.height());
+            let (w, h) = check_pair(left, right, params)?;
             let br = params.block_radius;
-            if w < 2 * br + 2 || h < 2 * br + 1 {
-                return Err(ImageError::TooSmall {
-                    width: w,
-                    height: h,
-                    what: format!("stereo block matching with {0}×{0} blocks", 2 * br + 1),
-                });
-            }
             let nd = params.max_disparity.min(w - 1) + 1;
             let cl = census_transform(left, params.census_radius);
             let cr = census_transform(right, params.census_radius);

@@ -53,7 +53,7 @@ use lsq::{
     VarKey,
 };
 use nalgebra::{SVector, Vector3};
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
 /// A keyframe pose in the optimisation: a similarity updated by rigid increments
@@ -493,23 +493,7 @@ impl DoubleWindowOptimiser {
         }
         window.outer.extend(extra_outer);
         // The spanning tree over the window, rooted at the reference.
-        let tree = {
-            let mut tree = BfsTree::default();
-            let mut queue = VecDeque::from([(root, None)]);
-            while let Some((v, parent)) = queue.pop_front() {
-                if tree.parent.contains_key(&v) {
-                    continue;
-                }
-                tree.parent.insert(v, parent);
-                tree.order.push(v);
-                for (n, _) in graph.neighbours_by_weight(v) {
-                    if window.contains(n) && !tree.parent.contains_key(&n) {
-                        queue.push_back((n, Some(v)));
-                    }
-                }
-            }
-            tree
-        };
+        let tree = graph.weighted_bfs_within(root, usize::MAX, |n| window.contains(n));
         // Re-initialisation (thesis eq. 6.3): keyframes new to the window and their descendants.
         let mut initial_poses = BTreeMap::new();
         let mut marked = BTreeSet::new();

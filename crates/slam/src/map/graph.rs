@@ -580,6 +580,17 @@ impl<const N: usize> SlamGraph<N> {
     /// order, the neighbours of each pushed strongest first; stops after `limit` vertices.
     /// Returns the visiting order and the BFS spanning tree rooted at `root`.
     pub fn weighted_bfs(&self, root: KeyframeId, limit: usize) -> BfsTree {
+        self.weighted_bfs_within(root, limit, |_| true)
+    }
+
+    /// [`SlamGraph::weighted_bfs`] through the keyframes `within` accepts only (the root is
+    /// always visited): the spanning tree of a window (`crate::dwo`).
+    pub fn weighted_bfs_within(
+        &self,
+        root: KeyframeId,
+        limit: usize,
+        within: impl Fn(KeyframeId) -> bool,
+    ) -> BfsTree {
         let mut tree = BfsTree::default();
         if self.keyframe(root).is_none() || limit == 0 {
             return tree;
@@ -595,7 +606,7 @@ impl<const N: usize> SlamGraph<N> {
                 break;
             }
             for (n, _) in self.neighbours_by_weight(v) {
-                if !tree.parent.contains_key(&n) {
+                if within(n) && !tree.parent.contains_key(&n) {
                     queue.push_back((n, Some(v)));
                 }
             }
