@@ -7,7 +7,7 @@ Per sequence:
 - ORB-SLAM3 (pyorbslam3) `--orb-runs` times on one core (it is multi-threaded and not
   deterministic: the range is reported);
 - Open3D hybrid RGB-D odometry once (RGB-D sequences).
-ATE RMSE by evo_ape -a (SE(3) alignment) on the every-frame trajectory each system returned live
+ATE RMSE by evo_ape -a (SE(3) alignment; monocular runs -a -s, Sim(3)) on the every-frame trajectory each system returned live
 and on its trajectory after the run (dwslam: trajectory_final.tum; ORB-SLAM3: the trajectory it
 saves at shutdown)."""
 import argparse, csv, json, os, re, statistics, subprocess, sys, time
@@ -33,6 +33,10 @@ SEQUENCES = [
     ("KITTI snippet stereo", ["kitti_odometry_snippets/KITTI_sequence_1"], "kitti-dir-stereo",
      ["--dir", os.path.join(a.data, "kitti_odometry_snippets/KITTI_sequence_1")], False),
     ("EuRoC micro stereo", ["euroc_v1_01_easy_micro"], "euroc", [], False),
+    # Monocular (issue 20): ATE after Sim(3) alignment (evo_ape -a -s), a single camera's map
+    # has its own scale.
+    ("KITTI snippet mono (left)", ["kitti_odometry_snippets/KITTI_sequence_1", "--sensor", "mono"], "kitti", [], False),
+    ("7-Scenes mono (1000 colour frames)", ["seven_scenes_redkitchen_1000", "--sensor", "mono"], "7scenes-mono", [], False),
 ]
 
 # Rendered sequences (dwslam render, exact ground truth): name, scene, sensor, layout. ORB-SLAM3
@@ -78,8 +82,9 @@ def backend(out):
             "keyframes_per_quarter": per_quarter}
 
 
-def ate(gt, est):
-    p = subprocess.run([evo, "tum", gt, est, "-a", "--t_max_diff", "0.02"], capture_output=True, text=True)
+def ate(gt, est, sim3=False):
+    p = subprocess.run([evo, "tum", gt, est, "-a", "--t_max_diff", "0.02"] + (["-s"] if sim3 else []),
+                       capture_output=True, text=True)
     m = re.search(r"rmse\s+([0-9.eE+-]+)", p.stdout)
     return float(m.group(1)) if m else None
 
@@ -99,9 +104,11 @@ def dwslam(name, args, core, deterministic):
     frame = [float(r["frame_ms"]) for r in rows if float(r["frame_ms"]) > 0]
     gt = os.path.join(out, "ground_truth.tum")
     n = s["frames"]
+    mono = "mono" in args
     return {
-        "ate_live": ate(gt, os.path.join(out, "trajectory.tum")),
-        "ate_final": ate(gt, os.path.join(out, "trajectory_final.tum")),
+        "ate_live": ate(gt, os.path.join(out, "trajectory.tum"), mono),
+        "ate_final": ate(gt, os.path.join(out, "trajectory_final.tum"), mono),
+        "alignment": "Sim3" if mono else "SE3",
         "tracked": (s["tracking"]["good"] + s["tracking"]["weak"]) / n,
         "ms_tracking_median": statistics.median(track) if track else None,
         "ms_frame_median": statistics.median(frame) if frame else None,

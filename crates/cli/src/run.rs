@@ -19,7 +19,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 use system::config::SystemConfig;
-use system::live::{LiveSystem, Mode, RunResult};
+use system::live::{LiveRun, LiveSystem, Mode, RunResult};
+use system::mono::MonoSystem;
 use system::place_recognition::{VocabularyOrigin, load_vocabulary};
 
 /// Options of `dwslam run`.
@@ -29,8 +30,8 @@ pub struct RunArgs {
     /// formats).
     pub path: PathBuf,
     /// The sensor to run (default: the sequence's own; `rgbd` needs depth images, `stereo` a
-    /// stereo pair).
-    #[arg(long, value_parser = ["stereo", "rgbd"])]
+    /// stereo pair, `mono` runs on the left / colour image of any sequence).
+    #[arg(long, value_parser = ["stereo", "rgbd", "mono"])]
     pub sensor: Option<String>,
     /// A YAML file overriding the system's parameters (`system::config::SystemConfig`).
     #[arg(long)]
@@ -120,17 +121,19 @@ pub fn run(args: RunArgs) -> Result<()> {
     let info = sequence.info().clone();
     let sensor = match (args.sensor.as_deref(), &info.camera) {
         (None | Some("stereo"), SensorModel::Stereo(_))
-        | (None | Some("rgbd"), SensorModel::Rgbd(_)) => info.camera,
+        | (None | Some("rgbd"), SensorModel::Rgbd(_)) => info.camera.clone(),
+        // A stereo or RGB-D sequence runs monocular on its left / colour image alone.
+        (None | Some("mono"), _) => SensorModel::Mono(*info.camera.pinhole()),
         (Some(want), have) => bail!(
             "--sensor {want}: {} is a {} sequence",
             args.path.display(),
             sensor_name(have)
         ),
-        (None, SensorModel::Mono(_)) => bail!(
-            "{} is a monocular sequence: the live system runs stereo and RGB-D sequences (monocular is a later issue)",
-            args.path.display()
-        ),
     };
+    anyhow::ensure!(
+        !(args.dense_ply && matches!(sensor, SensorModel::Mono(_))),
+        "--dense-ply fuses depth images or stereo disparities: a monocular run has neither"
+    );
     // The output folder is made only once the input is known to be runnable.
     args::output_dir(&args.out, "--out")?;
     let mode = if args.deterministic {
@@ -241,8 +244,7 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         stream,
     } = source;
     let config = settings.config.clone();
-    let mode = settings.mode;
-    let mut output = RunOutput::create(
+    let output = RunOutput::create(
         &settings.out,
         OutputOptions {
             kitti: settings.kitti,
@@ -259,18 +261,30 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
             }
         });
     }
+    let run = Run {
+        frames,
+        ground_truth,
+        skip_bad_frames,
+        stream,
+        stop,
+        output,
+    };
+    if let SensorModel::Mono(camera) = &sensor {
+        let system = MonoSystem::new(*camera, config, &name)?;
+        return drive(system, run, settings, Alignment::Sim3, |_| Ok(()));
+    }
     let loops = config.loops.clone();
     let dense_config = {
         let (camera, stereo) = match &sensor {
             SensorModel::Stereo(s) => (*s, true),
             SensorModel::Rgbd(r) => (r.stereo, false),
-            SensorModel::Mono(_) => unreachable!("refused above"),
+            SensorModel::Mono(_) => unreachable!("ran above"),
         };
         let mut dense = config.dense.clone();
         dense.depth_noise = config.depth_noise_for(&camera, stereo);
         (camera.pinhole, dense)
     };
-    let mut system = LiveSystem::new(&sensor, config, mode, &name)?;
+    let mut system = LiveSystem::new(&sensor, config, settings.mode, &name)?;
     if loops.enabled {
         let orb = loops.place_recognition.orb.params();
         let root = data::paths::dataset_root();
@@ -289,6 +303,61 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         );
         system = system.with_loop_closure(voc.vocabulary)?;
     }
+    let dense = |result: &RunResult| -> Result<()> {
+        if !settings.dense_ply {
+            return Ok(());
+        }
+        let (camera, config) = &dense_config;
+        let t = Instant::now();
+        let model = system::dense_model::fuse(&result.graph, &result.keyframes, camera, config)?;
+        let path = settings.out.join(DENSE_FILE);
+        let file =
+            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+        model
+            .write_ply(std::io::BufWriter::new(file))
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "dense model: {} points from {} keyframes ({:.1} cm voxels, seen from ≥ {}) in {:.1} s",
+            model.points().len(),
+            model.views(),
+            config.voxel_size * 100.0,
+            config.min_views,
+            t.elapsed().as_secs_f64()
+        );
+        Ok(())
+    };
+    drive(system, run, settings, Alignment::Se3, dense)
+}
+
+/// The stream and where its outputs go, for [`drive`].
+struct Run {
+    frames: usize,
+    ground_truth: Option<Trajectory>,
+    skip_bad_frames: bool,
+    stream: Box<dyn Iterator<Item = Result<Frame>>>,
+    stop: Arc<AtomicBool>,
+    output: RunOutput,
+}
+
+/// The frame loop and everything after it, for either system: the progress bar, the outputs
+/// (with `extra` writing what only one system has), ATE/RPE after `alignment` (`Sim3` for a
+/// monocular run, whose scale is its own), the report.
+fn drive<S: LiveRun<N>, const N: usize>(
+    mut system: S,
+    run: Run,
+    settings: &Settings,
+    alignment: Alignment,
+    extra: impl FnOnce(&RunResult<N>) -> Result<()>,
+) -> Result<Outcome> {
+    let Run {
+        frames,
+        ground_truth,
+        skip_bad_frames,
+        stream,
+        stop,
+        mut output,
+    } = run;
+    let mode = settings.mode;
     let bar = if settings.quiet {
         ProgressBar::hidden()
     } else {
@@ -370,7 +439,7 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         }
     );
     let ground_truth = ground_truth.as_ref();
-    let evaluation = ground_truth.map(|gt| evaluate(gt, &result));
+    let evaluation = ground_truth.map(|gt| evaluate(gt, &result, alignment));
     let mut record = result.record.clone();
     record.extra.insert(
         "run".into(),
@@ -429,26 +498,8 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
     }
     write_frame_stats(&settings.out.join(FRAME_STATS_FILE), &result)?;
     write_optimisation_stats(&settings.out.join(OPTIMISATION_STATS_FILE), &result)?;
-    if settings.dense_ply {
-        let (camera, config) = &dense_config;
-        let t = Instant::now();
-        let model = system::dense_model::fuse(&result.graph, &result.keyframes, camera, config)?;
-        let path = settings.out.join(DENSE_FILE);
-        let file =
-            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
-        model
-            .write_ply(std::io::BufWriter::new(file))
-            .with_context(|| format!("writing {}", path.display()))?;
-        println!(
-            "dense model: {} points from {} keyframes ({:.1} cm voxels, seen from ≥ {}) in {:.1} s",
-            model.points().len(),
-            model.views(),
-            config.voxel_size * 100.0,
-            config.min_views,
-            t.elapsed().as_secs_f64()
-        );
-    }
-    report(&settings.out, &result, ground_truth)?;
+    extra(&result)?;
+    report(&settings.out, &result, ground_truth, alignment)?;
     println!("wrote {}", settings.out.display());
     let outcome = Outcome {
         frames: processed,
@@ -464,7 +515,7 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
     }
 }
 
-fn write_frame_stats(path: &Path, result: &RunResult) -> Result<()> {
+fn write_frame_stats<const N: usize>(path: &Path, result: &RunResult<N>) -> Result<()> {
     use std::fmt::Write as _;
     let mut text = String::from(
         "frame,state,keyframe,candidates,visible,searched,found,inliers,tracking_ms,frame_ms\n",
@@ -493,7 +544,7 @@ fn write_frame_stats(path: &Path, result: &RunResult) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
 }
 
-fn write_optimisation_stats(path: &Path, result: &RunResult) -> Result<()> {
+fn write_optimisation_stats<const N: usize>(path: &Path, result: &RunResult<N>) -> Result<()> {
     use std::fmt::Write as _;
     let mut text = String::from(
         "optimisation,inner_keyframes,outer_keyframes,points,point_constraints,pose_constraints,setup_ms,structure_ms,joint_ms,apply_ms,total_ms\n",
@@ -516,6 +567,14 @@ fn write_optimisation_stats(path: &Path, result: &RunResult) -> Result<()> {
         );
     }
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+fn alignment_name(a: Alignment) -> &'static str {
+    match a {
+        Alignment::None => "none",
+        Alignment::Se3 => "se3",
+        Alignment::Sim3 => "sim3",
+    }
 }
 
 fn sensor_name(s: &SensorModel) -> &'static str {
@@ -543,7 +602,11 @@ struct Evaluation {
     ate: Option<(f64, f64)>,
 }
 
-fn evaluate(gt: &Trajectory, result: &RunResult) -> Evaluation {
+fn evaluate<const N: usize>(
+    gt: &Trajectory,
+    result: &RunResult<N>,
+    alignment: Alignment,
+) -> Evaluation {
     let live = result.record.trajectory();
     let mut json = serde_json::Map::new();
     let mut lines = Vec::new();
@@ -558,10 +621,10 @@ fn evaluate(gt: &Trajectory, result: &RunResult) -> Evaluation {
         }
         let r: Vec<Se3> = pairs.iter().map(|&(i, _)| gt.world_from_body[i]).collect();
         let e: Vec<Se3> = pairs.iter().map(|&(_, j)| est.world_from_body[j]).collect();
-        let Ok(a) = ate(&r, &e, Alignment::Se3) else {
+        let Ok(a) = ate(&r, &e, alignment) else {
             continue;
         };
-        let rp = rpe(&r, &e, 1, false, Alignment::Se3).ok();
+        let rp = rpe(&r, &e, 1, false, alignment).ok();
         lines.push(format!(
             "{name} trajectory ({} of {} frames with ground truth): ATE RMSE {:.2} cm (median {:.2}, max {:.2}), RPE {}",
             pairs.len(),
@@ -584,7 +647,7 @@ fn evaluate(gt: &Trajectory, result: &RunResult) -> Evaluation {
                 "ate_max_m": a.translation.max,
                 "rpe_translation_rmse_m": rp.as_ref().map(|p| p.translation.rmse),
                 "rpe_rotation_rmse_deg": rp.as_ref().map(|p| p.rotation_rad.rmse.to_degrees()),
-                "alignment": "se3",
+                "alignment": alignment_name(alignment),
             }),
         );
     }
@@ -623,7 +686,12 @@ fn top_axes(points: impl Iterator<Item = nalgebra::Vector3<f64>>) -> (usize, usi
 
 /// The report: trajectory against ground truth (top view), the keyframe graph with its loop
 /// edges, time per frame and per keyframe, tracked points per frame.
-fn report(out: &Path, result: &RunResult, ground_truth: Option<&Trajectory>) -> Result<()> {
+fn report<const N: usize>(
+    out: &Path,
+    result: &RunResult<N>,
+    ground_truth: Option<&Trajectory>,
+    alignment: Alignment,
+) -> Result<()> {
     let live = result.record.trajectory();
     // The top view: the plane of the two axes along which the path spreads most (a hand-held
     // or driven camera moves little vertically, whichever axis a dataset calls up: y down in
@@ -649,7 +717,7 @@ fn report(out: &Path, result: &RunResult, ground_truth: Option<&Trajectory>) -> 
                     .iter()
                     .map(|&(_, j)| traj.world_from_body[j])
                     .collect();
-                match ate(&r, &e, Alignment::Se3) {
+                match ate(&r, &e, alignment) {
                     Ok(al) => e
                         .iter()
                         .map(|p| {

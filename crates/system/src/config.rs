@@ -58,6 +58,69 @@ pub struct SystemConfig {
     /// The dense model of `dwslam run --dense-ply` (thesis §6.5.3; its `depth_noise` is the
     /// system's).
     pub dense: DenseModelConfig,
+    /// The monocular system (`--sensor mono`, [`crate::mono`]).
+    pub mono: MonoConfig,
+}
+
+/// Parameters of the monocular system ([`crate::mono`]): the image-side corner tracks and the
+/// exploration they feed (`slam::exploration`).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MonoConfig {
+    /// Corner tracks kept alive (300): new corners are selected where the tracks are sparse
+    /// whenever fewer remain. Twice the features the exploration keeps (`max_features`), so a
+    /// keyframe has candidates for new features wherever the map thins out.
+    pub tracks: usize,
+    /// A new corner needs this many pixels to the nearest live track (10 px: a LK window's
+    /// half-size and a little more, so two tracks never follow the same texture).
+    pub track_spacing: f64,
+    /// FAST threshold of the corner selection (the stereo/RGB-D front-end's 20).
+    pub fast_threshold: u8,
+    /// Minimum quadtree cell of the selection, pixels (the front-end's 8).
+    pub min_cell: f32,
+    /// A track survives a frame only if LK back from it returns within this many pixels (1 px:
+    /// a forward-backward error beyond a corner's own localisation error is a drift or an
+    /// occlusion).
+    pub max_forward_backward: f32,
+    /// Pyramid levels of the tracking (4, as the front-end: ±40 px of motion at the finest
+    /// level with LK's ±3 px per level).
+    pub levels: usize,
+    /// Features (map points and filters) the exploration keeps (150: the thesis's §3.4.3
+    /// density, ≈ one per 45×45 px at 640×480).
+    pub max_features: usize,
+    /// A new feature needs a feature-free box of this half-size, pixels (12).
+    pub feature_spacing: f64,
+    /// Keyframes in the sliding bundle adjustment window (10, thesis §5.4).
+    pub window: usize,
+    /// A keyframe when the camera moved this fraction of the median scene depth from the last
+    /// one (0.05: a 3° parallax at the median depth, enough to triangulate new features).
+    pub keyframe_distance: f64,
+    /// The bootstrap waits for the parallax at which a typical point's relative depth error
+    /// is at most this (0.1: `θ ≥ √2·σ/(f·ε)`, 1.5° at f = 525 px, σ = 1 px).
+    pub bootstrap_depth_error: f64,
+    /// Give up a bootstrap after this many frames and start again from the current one (30:
+    /// a second at 30 Hz; a camera that has not moved enough by then is better started anew
+    /// from what it sees now).
+    pub max_bootstrap_frames: usize,
+}
+
+impl Default for MonoConfig {
+    fn default() -> Self {
+        MonoConfig {
+            tracks: 300,
+            track_spacing: 10.0,
+            fast_threshold: 20,
+            min_cell: 8.0,
+            max_forward_backward: 1.0,
+            levels: 4,
+            max_features: 150,
+            feature_spacing: 12.0,
+            window: 10,
+            keyframe_distance: 0.05,
+            bootstrap_depth_error: 0.1,
+            max_bootstrap_frames: 30,
+        }
+    }
 }
 
 /// Large-scale loop closure (thesis §6.4.2; [`crate::loops`]).
@@ -107,6 +170,7 @@ impl Default for SystemConfig {
             depth_noise: None,
             loops: LoopConfig::default(),
             dense: Default::default(),
+            mono: MonoConfig::default(),
         }
     }
 }
@@ -398,6 +462,24 @@ impl SystemConfig {
             .map_err(|e| ConfigError::Invalid(e.to_string()))?;
         if self.stereo.max_disparity == Some(0) {
             return bad("stereo.max_disparity must be at least 1".into());
+        }
+        let m = &self.mono;
+        if m.tracks < 8 || m.levels == 0 || m.window < 2 || m.max_features < 8 {
+            return bad(
+                "mono.tracks and mono.max_features must be at least 8, mono.levels at least 1, mono.window at least 2"
+                    .into(),
+            );
+        }
+        if !(m.keyframe_distance > 0.0
+            && m.bootstrap_depth_error > 0.0
+            && m.track_spacing >= 0.0
+            && m.feature_spacing >= 0.0
+            && m.max_forward_backward > 0.0)
+        {
+            return bad("mono.keyframe_distance, bootstrap_depth_error and max_forward_backward must be positive, the spacings non-negative".into());
+        }
+        if m.max_bootstrap_frames == 0 {
+            return bad("mono.max_bootstrap_frames must be at least 1".into());
         }
         Ok(())
     }

@@ -106,6 +106,9 @@ pub enum KeyframeReason {
     Rotation(f64),
     /// Only this fraction of the candidate points was found.
     FewFound(f64),
+    /// The monocular exploration's criterion (`slam::exploration`: the camera moved a fraction
+    /// of the scene depth from the last keyframe, or few map points were tracked).
+    Exploration,
 }
 
 impl KeyframeReason {
@@ -116,6 +119,7 @@ impl KeyframeReason {
             KeyframeReason::Parallax(_) => "parallax",
             KeyframeReason::Rotation(_) => "rotation",
             KeyframeReason::FewFound(_) => "few found",
+            KeyframeReason::Exploration => "exploration",
         }
     }
 }

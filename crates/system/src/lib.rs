@@ -10,13 +10,13 @@
 #![warn(missing_docs)]
 
 pub mod association;
-pub mod bootstrap;
 pub mod config;
 pub mod dense_model;
 pub mod frame;
 pub mod keyframes;
 pub mod live;
 pub mod loops;
+pub mod mono;
 pub mod place_recognition;
 pub mod search;
 pub mod tracker;

@@ -102,9 +102,10 @@ pub struct LoopEvent {
     pub kind: &'static str,
 }
 
-/// Everything a run produced.
+/// Everything a run produced; `N` is the dimension of a measurement (3: stereo and RGB-D, 2:
+/// monocular).
 #[derive(Clone, Debug)]
-pub struct RunResult {
+pub struct RunResult<const N: usize = 3> {
     /// Every frame with its live pose (as tracked), the keyframes and the map after the final
     /// optimisation, per-stage timings.
     pub record: RunRecord,
@@ -118,12 +119,46 @@ pub struct RunResult {
     /// The optimisations (time and window sizes of each).
     pub optimisations: Vec<DwoStats>,
     /// The final graph.
-    pub graph: SlamGraph<3>,
+    pub graph: SlamGraph<N>,
     /// The keyframes' images.
     pub keyframes: KeyframeStore,
     /// What went wrong without stopping the run (an optimisation or a loop closure that
     /// failed, keyframes the loop closer had no room for).
     pub warnings: Vec<String>,
+}
+
+/// A live system as the run loop drives it: frames in order, then the result. The stereo /
+/// RGB-D [`LiveSystem`] (`N = 3`) and the monocular [`crate::mono::MonoSystem`] (`N = 2`).
+pub trait LiveRun<const N: usize> {
+    /// Processes one frame.
+    fn process(&mut self, frame: data::sequence::Frame) -> Result<FrameReport, SystemError>;
+    /// Records a frame that could not be read: it has no pose; the state says why.
+    fn skip_frame(&mut self, index: usize, timestamp: f64, reason: String);
+    /// The record so far (for writing outputs while the run goes on).
+    fn record(&self) -> &RunRecord;
+    /// Records a stage's time measured outside (e.g. the reader's wait).
+    fn record_timing(&mut self, stage: &str, d: Duration);
+    /// Ends the run (`interrupted`: stopped before the end of the sequence) and collects the
+    /// outputs.
+    fn finish(self, interrupted: bool) -> Result<RunResult<N>, SystemError>;
+}
+
+impl LiveRun<3> for LiveSystem {
+    fn process(&mut self, frame: data::sequence::Frame) -> Result<FrameReport, SystemError> {
+        LiveSystem::process(self, frame)
+    }
+    fn skip_frame(&mut self, index: usize, timestamp: f64, reason: String) {
+        LiveSystem::skip_frame(self, index, timestamp, reason)
+    }
+    fn record(&self) -> &RunRecord {
+        LiveSystem::record(self)
+    }
+    fn record_timing(&mut self, stage: &str, d: Duration) {
+        LiveSystem::record_timing(self, stage, d)
+    }
+    fn finish(self, interrupted: bool) -> Result<RunResult<3>, SystemError> {
+        LiveSystem::finish(self, interrupted)
+    }
 }
 
 /// The double window optimisation thread.

@@ -5,11 +5,13 @@
 //! For every frame, in order:
 //!
 //! 1. **Bootstrap** (thesis §3.5): until a map exists, the first frame is paired with each new
-//!    one; once their common tracks show enough parallax, the normalised 8-point algorithm in
-//!    RANSAC ([`geom::two_view::relative_pose_ransac`]) gives the relative pose (with the
-//!    cheirality check), the inliers are triangulated, both views are bundle adjusted with the
-//!    first pose fixed and the scale left to the damping (§4.5.3), and the map is scaled so the
-//!    baseline has unit length — the arbitrary scale every monocular map invents.
+//!    one; [`geom::bootstrap::bootstrap_pose`] fits the homography and the essential matrix in
+//!    RANSAC, chooses by GRIC, and triangulates the chosen model's inliers (cheirality and
+//!    re-projection checked) once the median parallax gives a typical point a relative depth
+//!    error below `bootstrap_depth_error` (and at least `min_bootstrap_parallax`); both views
+//!    are bundle adjusted with the first pose fixed and the scale left to the damping
+//!    (§4.5.3), and the map is scaled so the baseline has unit length — the arbitrary scale
+//!    every monocular map invents.
 //! 2. **Tracking**: the pose is predicted with constant velocity and refined by motion-only BA
 //!    (thesis eq. 4.14) against the active map points measured in this frame, with a Huber
 //!    kernel.
@@ -46,8 +48,8 @@ use crate::factors::point_to_inverse_depth;
 use crate::map::{KeyframeId, PointId, SlamGraph};
 use crate::tracking::{MotionOnlyOptions, motion_only_ba};
 use feature_init::{FeatureFilters, FeatureId, FeatureInitConfig};
+use geom::bootstrap::{BootstrapConfig, bootstrap_pose};
 use geom::ransac::RansacConfig;
-use geom::two_view::{relative_pose_ransac, triangulate};
 use geom::{CameraModel, PinholeCamera};
 use lie::{LieGroup, Se3, Sim3};
 use lsq::{RobustKernel, SolverOptions};
@@ -88,14 +90,19 @@ pub struct ExplorationConfig {
     pub ba_iterations: usize,
     /// Levenberg-Marquardt iterations of motion-only tracking.
     pub tracking_iterations: usize,
-    /// Minimum median parallax (radians) for the bootstrap.
+    /// Minimum median parallax (radians) for the bootstrap, beyond what
+    /// [`bootstrap_depth_error`](Self::bootstrap_depth_error) needs.
     pub min_bootstrap_parallax: f64,
+    /// The bootstrap waits for the parallax at which a typical point's relative depth error is
+    /// at most this (`geom::bootstrap::BootstrapConfig::max_relative_depth_error`).
+    pub bootstrap_depth_error: f64,
     /// Minimum fraction of the common tracks that must be inliers of the bootstrap's relative
     /// pose (a wrong two-view solution explains only a part of the correspondences).
     pub min_bootstrap_inlier_ratio: f64,
     /// Give up bootstrapping after this many frames.
     pub max_bootstrap_frames: usize,
-    /// RANSAC of the bootstrap (threshold in pixels).
+    /// RANSAC of the bootstrap: its seed and iteration budget (the inlier gates come from
+    /// `sigma` and the χ² quantiles at 95 %).
     pub ransac: RansacConfig,
     /// Seed of the quadtree traversal.
     pub seed: u64,
@@ -104,7 +111,8 @@ pub struct ExplorationConfig {
 impl Default for ExplorationConfig {
     /// A 640×480 camera with σ = 1 px, a window of 10 keyframes, keyframes every 5 % of the
     /// scene depth, up to 150 features at least 12 px apart, Huber at 2σ, bootstrap at 2° median
-    /// parallax with a 2 px RANSAC threshold and at least 60 % inliers.
+    /// parallax (a relative depth error of 10 % needs 1.5° at f = 525 px) with at least 60 %
+    /// inliers and RANSAC's default budget.
     fn default() -> Self {
         ExplorationConfig {
             sigma: 1.0,
@@ -121,12 +129,10 @@ impl Default for ExplorationConfig {
             ba_iterations: 10,
             tracking_iterations: 10,
             min_bootstrap_parallax: 2f64.to_radians(),
+            bootstrap_depth_error: 0.1,
             min_bootstrap_inlier_ratio: 0.6,
             max_bootstrap_frames: 30,
-            ransac: RansacConfig {
-                threshold: 2.0,
-                ..RansacConfig::default()
-            },
+            ransac: RansacConfig::default(),
             seed: 0,
         }
     }
@@ -466,16 +472,28 @@ impl MonoExplorer {
                 m_b.push(self.camera.normalised_from_pixel(z));
             }
         }
-        let ransac = RansacConfig {
+        // One two-view bootstrap for simulated and image tracks: `geom::bootstrap::bootstrap_pose`
+        // chooses between the homography and the essential matrix (GRIC) and triangulates the
+        // chosen model's inliers with the cheirality and re-projection checks; its parallax
+        // gate is the one a relative depth error `bootstrap_depth_error` needs, and
+        // `min_bootstrap_parallax` may ask for more.
+        let mut bootstrap = BootstrapConfig::new(
+            self.camera.fx,
+            self.config.sigma,
+            lsq::chi2_quantile(1, 0.95),
+            lsq::chi2_quantile(2, 0.95),
+        );
+        bootstrap.max_relative_depth_error = self.config.bootstrap_depth_error;
+        bootstrap.min_triangulated = self.config.min_tracked.max(8);
+        bootstrap.ransac = RansacConfig {
             seed: self.config.ransac.seed ^ self.config.seed,
             ..self.config.ransac
         };
-        let rel =
-            relative_pose_ransac(&m_a, &m_b, self.camera.fx, &ransac).map_err(|e| e.to_string())?;
-        if (rel.inliers.len() as f64) < self.config.min_bootstrap_inlier_ratio * m_a.len() as f64 {
+        let rel = bootstrap_pose(&m_a, &m_b, &bootstrap).map_err(|e| e.to_string())?;
+        let n_inliers = rel.inliers.iter().filter(|&&i| i).count();
+        if (n_inliers as f64) < self.config.min_bootstrap_inlier_ratio * m_a.len() as f64 {
             return Err(format!(
-                "only {} of {} correspondences are inliers",
-                rel.inliers.len(),
+                "only {n_inliers} of {} correspondences are inliers",
                 m_a.len()
             ));
         }
@@ -486,15 +504,20 @@ impl MonoExplorer {
                 self.config.min_bootstrap_parallax.to_degrees()
             ));
         }
-        // Triangulate the inliers with a usable parallax (a quarter of the required median).
+        // The well triangulated inliers with a usable parallax (a quarter of the median the
+        // bootstrap needs).
+        let min_ray_angle = 0.25
+            * self
+                .config
+                .min_bootstrap_parallax
+                .max(bootstrap.min_parallax());
         let mut pts = Vec::new();
-        for &i in &rel.inliers {
-            if let Some(t) = triangulate(&rel.b_from_a, &m_a[i], &m_b[i])
-                && t.depth_a > 0.0
-                && t.depth_b > 0.0
-                && t.parallax >= 0.25 * self.config.min_bootstrap_parallax
-            {
-                pts.push((i, t.point_a));
+        for (i, p) in rel.points.iter().enumerate() {
+            let Some(p) = p else { continue };
+            let ray_a = rel.b_from_a.rotation().act(p);
+            let ray_b = rel.b_from_a.act(p);
+            if ray_a.angle(&ray_b) >= min_ray_angle {
+                pts.push((i, *p));
             }
         }
         if pts.len() < self.config.min_tracked.max(8) {

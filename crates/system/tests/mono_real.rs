@@ -1,0 +1,145 @@
+//! The monocular live system on real images (issue 20): the KITTI snippet's left camera and
+//! 7-Scenes Red Kitchen's colour camera. Corner tracks feed `slam::exploration` (bootstrap
+//! with homography/essential model selection, motion-only BA, inverse-depth feature filters,
+//! sliding-window BA); the trajectory of every frame is scored after Sim(3) alignment (a
+//! monocular map has its own scale). The bounds: KITTI at most ORB-SLAM3 mono's best run
+//! measured here (10.1 cm, issue 20); 7-Scenes a regression bound above today's 10.5 cm (its
+//! acceptance, ORB-SLAM3's 4.03 cm, needs map reuse and loop closure, not built yet). Two
+//! deterministic runs are identical.
+
+use data::eval::{Alignment, ate};
+use data::paths;
+use data::sequence::{OpenOptions, Sequence};
+use lie::{LieGroup, Se3};
+use system::config::SystemConfig;
+use system::live::{LiveRun, RunResult};
+use system::mono::MonoSystem;
+
+struct Scored {
+    result: RunResult<2>,
+    /// Frames with a live pose.
+    tracked: usize,
+    frames: usize,
+    /// ATE RMSE (m) of the live poses after Sim(3) alignment.
+    ate: f64,
+    /// The first frame with a live pose.
+    first_pose: usize,
+    truth: Vec<Se3>,
+}
+
+fn run(name: &str, frames: usize) -> Option<Scored> {
+    let path = paths::require(name)?;
+    let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
+    let camera = *sequence.info().camera.pinhole();
+    let mut system = MonoSystem::new(camera, SystemConfig::default(), name).unwrap();
+    let mut truth = Vec::new();
+    let n = frames.min(sequence.len());
+    for k in 0..n {
+        let frame = sequence.read(k).unwrap().unwrap();
+        truth.push(frame.world_from_camera.expect("ground truth"));
+        system.process(frame).unwrap();
+    }
+    let result = system.finish(false).unwrap();
+    let (mut r, mut e) = (Vec::new(), Vec::new());
+    for f in &result.record.frames {
+        if let Some(p) = f.world_from_camera {
+            r.push(truth[f.index]);
+            e.push(p);
+        }
+    }
+    let first_pose = result
+        .record
+        .frames
+        .iter()
+        .find(|f| f.world_from_camera.is_some())
+        .map_or(usize::MAX, |f| f.index);
+    let ate = ate(&r, &e, Alignment::Sim3).unwrap().translation.rmse;
+    Some(Scored {
+        tracked: e.len(),
+        frames: n,
+        ate,
+        first_pose,
+        truth,
+        result,
+    })
+}
+
+#[test]
+fn kitti_left_camera_is_tracked_at_orb_slam3_accuracy() {
+    let Some(s) = run("kitti_odometry_snippets/KITTI_sequence_1", 51) else {
+        return;
+    };
+    println!(
+        "KITTI mono: first pose at frame {}, {}/{} frames tracked, ATE (Sim(3)) {:.2} cm, {} keyframes, {} points",
+        s.first_pose,
+        s.tracked,
+        s.frames,
+        s.ate * 100.0,
+        s.result.record.keyframes.len(),
+        s.result.record.points.len()
+    );
+    assert!(s.first_pose < 15, "initialised at frame {}", s.first_pose);
+    assert!(s.tracked * 100 >= 95 * s.frames, "{} tracked", s.tracked);
+    assert!(s.ate <= 0.101, "ATE {:.2} cm", s.ate * 100.0);
+    // The bootstrap's relative pose (the first two keyframes) against the ground truth.
+    let k = &s.result.record.keyframes;
+    let estimate = k[1]
+        .world_from_camera
+        .inverse()
+        .compose(&k[0].world_from_camera);
+    let truth = s.truth[k[1].frame_index]
+        .inverse()
+        .compose(&s.truth[k[0].frame_index]);
+    let rotation = estimate
+        .rotation()
+        .compose(&truth.rotation().inverse())
+        .log()
+        .norm()
+        .to_degrees();
+    let (a, b) = (estimate.translation(), truth.translation());
+    let direction = (a.dot(b) / (a.norm() * b.norm()))
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees();
+    println!(
+        "bootstrap between frames {} and {}: rotation error {rotation:.2}°, translation direction {direction:.2}°",
+        k[0].frame_index, k[1].frame_index
+    );
+    assert!(rotation < 0.5 && direction < 2.0);
+}
+
+#[test]
+fn seven_scenes_colour_camera_is_tracked_and_runs_are_deterministic() {
+    let Some(a) = run("seven_scenes_redkitchen_1000", 1000) else {
+        return;
+    };
+    println!(
+        "7-Scenes mono: first pose at frame {}, {}/{} frames tracked, ATE (Sim(3)) {:.2} cm, {} keyframes; {:?}",
+        a.first_pose,
+        a.tracked,
+        a.frames,
+        a.ate * 100.0,
+        a.result.record.keyframes.len(),
+        a.result.warnings
+    );
+    assert!(a.tracked * 100 >= 90 * a.frames, "{} tracked", a.tracked);
+    assert!(a.ate <= 0.15, "ATE {:.2} cm", a.ate * 100.0);
+    // Frames before the first pose say why.
+    for f in &a.result.record.frames[..a.first_pose.min(a.frames)] {
+        assert!(
+            matches!(&f.state, data::output::TrackingState::Lost(why) if !why.is_empty()),
+            "{:?}",
+            f.state
+        );
+    }
+    let b = run("seven_scenes_redkitchen_1000", 300).unwrap();
+    for (x, y) in a.result.record.frames.iter().zip(&b.result.record.frames) {
+        assert_eq!(x.state, y.state, "frame {}", x.index);
+        assert_eq!(
+            x.world_from_camera.map(|p| p.log()),
+            y.world_from_camera.map(|p| p.log()),
+            "frame {} differs between runs",
+            x.index
+        );
+    }
+}
