@@ -5,7 +5,8 @@
 #   bench/live/run.sh [OUT]      env: ORB_RUNS (default 3), DWSLAM_DATA, LIVE_PEERS_VENV,
 #                                     DWSLAM_BUILD_LOCK (a lock file serialising builds/timings),
 #                                     RENDERED (folder of the rendered sequences, rendered there
-#                                     when missing, ~8 GB; default OUT/rendered; "none" skips them)
+#                                     when missing, ~8 GB; default OUT/rendered; "none" skips them),
+#                                     ONLY (comma-separated parts of sequence names, e.g. "mono")
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
 ROOT=$(cd "$HERE/../.." && pwd)
@@ -20,4 +21,5 @@ DWSLAM_DATA=$DATA bash "$PEERS/setup.sh" >/dev/null
 export DWSLAM_DATA=$DATA OMP_NUM_THREADS=1
 lock "$V/bin/python" "$HERE/run.py" --dwslam "$ROOT/target/release/dwslam" --data "$DATA" \
   --peers "$PEERS" --venv "$V" --out "$OUT" --orb-runs "${ORB_RUNS:-3}" \
-  $( [ "${RENDERED:-}" = none ] || echo --rendered "${RENDERED:-$OUT/rendered}" )
+  $( [ "${RENDERED:-}" = none ] || echo --rendered "${RENDERED:-$OUT/rendered}" ) \
+  $( [ -z "${ONLY:-}" ] || echo --only "$ONLY" )

@@ -102,6 +102,11 @@ pub struct MonoConfig {
     /// a second at 30 Hz; a camera that has not moved enough by then is better started anew
     /// from what it sees now).
     pub max_bootstrap_frames: usize,
+    /// Start a new map after this many frames in a row in which the corner tracks could not be
+    /// followed (10, a third of a second at 30 Hz: a black frame or a short glitch is waited
+    /// out against the last good frame; after longer, the camera has moved too far for LK
+    /// from there).
+    pub max_refused: usize,
 }
 
 impl Default for MonoConfig {
@@ -119,6 +124,7 @@ impl Default for MonoConfig {
             keyframe_distance: 0.05,
             bootstrap_depth_error: 0.1,
             max_bootstrap_frames: 30,
+            max_refused: 10,
         }
     }
 }
@@ -478,8 +484,8 @@ impl SystemConfig {
         {
             return bad("mono.keyframe_distance, bootstrap_depth_error and max_forward_backward must be positive, the spacings non-negative".into());
         }
-        if m.max_bootstrap_frames == 0 {
-            return bad("mono.max_bootstrap_frames must be at least 1".into());
+        if m.max_bootstrap_frames == 0 || m.max_refused == 0 {
+            return bad("mono.max_bootstrap_frames and mono.max_refused must be at least 1".into());
         }
         Ok(())
     }

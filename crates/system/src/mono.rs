@@ -47,6 +47,12 @@ pub struct CornerTracks {
     grid: Vec<Vec<[f32; 2]>>,
 }
 
+/// A frame in which fewer than this fraction of the previous frame's tracks survive is refused
+/// (0.2: between two frames of a moving camera most corners stay in view and LK follows them;
+/// losing four fifths at once is a broken frame — black, corrupt, textureless — or a jump);
+/// the tracks wait for the next frame in the last good one.
+pub const MIN_SURVIVING_FRACTION: f64 = 0.2;
+
 /// Replenish when fewer than this fraction of the wanted tracks live (0.9: the selection costs
 /// a FAST pass over the image, a few milliseconds, so it runs every few frames rather than in
 /// every one, and the tracks stay within 10 % of their number).
@@ -69,13 +75,18 @@ impl CornerTracks {
     }
 
     /// Follows the tracks into `image` and replenishes them; returns the live tracks with their
-    /// positions (pixels).
-    pub fn push(&mut self, image: &GrayImage) -> Result<&[(TrackId, [f32; 2])], ImageError> {
+    /// positions (pixels), or `Ok(Err((survived, of)))` when too few survived
+    /// ([`MIN_SURVIVING_FRACTION`]): the frame is refused and the tracks stay in the previous
+    /// one.
+    pub fn push(
+        &mut self,
+        image: &GrayImage,
+    ) -> Result<Result<&[(TrackId, [f32; 2])], (usize, usize)>, ImageError> {
         let levels = self.config.levels;
         let pyramid = Pyramid::new(image, levels, 16)?;
         let (w, h) = (image.width() as f32, image.height() as f32);
         let mut live = Vec::new();
-        if let Some((previous, tracks)) = self.previous.take() {
+        if let Some((previous, tracks)) = &self.previous {
             let from: Vec<[f32; 2]> = tracks.iter().map(|t| t.1).collect();
             let to = track_forward_backward(
                 &previous,
@@ -98,12 +109,16 @@ impl CornerTracks {
                     live.push((*id, p));
                 }
             }
+            let of = tracks.len();
+            if (live.len() as f64) < MIN_SURVIVING_FRACTION * of as f64 {
+                return Ok(Err((live.len(), of)));
+            }
         }
         if (live.len() as f64) < REPLENISH_FRACTION * self.config.tracks as f64 {
             self.replenish(image, &mut live);
         }
         let (_, tracks) = self.previous.insert((pyramid, live));
-        Ok(tracks)
+        Ok(Ok(tracks))
     }
 
     /// New corners, in the quadtree's order, at least `track_spacing` from every track, until
@@ -179,6 +194,8 @@ pub struct MonoSystem {
     finished: Vec<(usize, Se3)>,
     /// Maps lost after their bootstrap (tracking lost, a new map started).
     lost_maps: usize,
+    /// Frames refused in a row by the corner tracks.
+    refused: usize,
     warnings: Vec<String>,
 }
 
@@ -203,6 +220,7 @@ impl MonoSystem {
             reports: Vec::new(),
             finished: Vec::new(),
             lost_maps: 0,
+            refused: 0,
             warnings: Vec::new(),
         })
     }
@@ -237,18 +255,50 @@ impl LiveRun<2> for MonoSystem {
         let image = frame.gray();
         let (width, height) = (image.width(), image.height());
         let t = Instant::now();
-        let tracks = self
+        let measurements: Result<Vec<(TrackId, Vector2<f64>)>, _> = self
             .tracks
             .push(image)
-            .map_err(|e| SystemError::Frame(e.into()))?;
-        let measurements: Vec<(TrackId, Vector2<f64>)> = tracks
-            .iter()
-            .map(|&(id, p)| (id, Vector2::new(p[0] as f64, p[1] as f64)))
-            .collect();
-        let n_tracks = measurements.len();
+            .map_err(|e| SystemError::Frame(e.into()))?
+            .map(|tracks| {
+                tracks
+                    .iter()
+                    .map(|&(id, p)| (id, Vector2::new(p[0] as f64, p[1] as f64)))
+                    .collect()
+            });
         self.record
             .timings
             .record("frame: pyramid, LK tracks", t.elapsed());
+        let measurements = match measurements {
+            Ok(m) => {
+                self.refused = 0;
+                m
+            }
+            Err((survived, of)) => {
+                self.refused += 1;
+                let mut why = format!(
+                    "only {survived} of {of} corner tracks followed into this frame: refused"
+                );
+                if self.refused >= self.config.mono.max_refused {
+                    self.restart(format!(
+                        "frame {}: {} frames in a row refused: a new map starts",
+                        frame.index, self.refused
+                    ));
+                    self.refused = 0;
+                    why.push_str("; a new map starts");
+                }
+                let report = FrameReport {
+                    index: frame.index,
+                    state: TrackingState::Lost(why),
+                    keyframe: None,
+                    stats: None,
+                    time: start.elapsed(),
+                    time_tracking: start.elapsed(),
+                };
+                self.push(report.clone(), &frame, None);
+                return Ok(report);
+            }
+        };
+        let n_tracks = measurements.len();
         let t = Instant::now();
         let camera = self.camera;
         let config = exploration_config(&self.config, width, height);

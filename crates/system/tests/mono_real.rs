@@ -143,3 +143,87 @@ fn seven_scenes_colour_camera_is_tracked_and_runs_are_deterministic() {
         );
     }
 }
+
+/// Hard input (issue 20): gaps of 5 and 30 frames, a black frame, a textureless stretch and an
+/// unreadable frame never stop the run; every frame is in the record with a state saying what
+/// happened, and the map survives a single black frame.
+#[test]
+fn gaps_black_textureless_and_unreadable_frames_are_reported_and_the_run_goes_on() {
+    let Some(path) = paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
+    let camera = *sequence.info().camera.pinhole();
+    // Frames 0–119 (initialised by ~50), a gap of 5, to 160, a gap of 30, to 260.
+    let indices: Vec<usize> = (0..120).chain(125..160).chain(190..260).collect();
+    let mut system = MonoSystem::new(camera, SystemConfig::default(), "hard").unwrap();
+    let (black, unreadable) = (100, 110);
+    let textureless = 200..215;
+    for &k in &indices {
+        if k == unreadable {
+            system.skip_frame(k, k as f64 / 30.0, "skipped: corrupt image".into());
+            continue;
+        }
+        let mut frame = sequence.read(k).unwrap().unwrap();
+        if let data::sequence::FrameImages::Rgbd { image, .. }
+        | data::sequence::FrameImages::Mono { image, .. } = &mut frame.images
+        {
+            if k == black {
+                image.data_mut().fill(0);
+            } else if textureless.contains(&k) {
+                image.data_mut().fill(128);
+            }
+        }
+        system.process(frame).unwrap();
+    }
+    let r = system.finish(false).unwrap();
+    assert_eq!(
+        r.record.frames.len(),
+        indices.len(),
+        "every frame is in the record"
+    );
+    let state = |k: usize| {
+        &r.record
+            .frames
+            .iter()
+            .find(|f| f.index == k)
+            .expect("in the record")
+            .state
+    };
+    let pose = |k: usize| {
+        r.record
+            .frames
+            .iter()
+            .find(|f| f.index == k)
+            .and_then(|f| f.world_from_camera)
+    };
+    use data::output::TrackingState::Lost;
+    assert!(
+        matches!(state(black), Lost(why) if why.contains("corner tracks")),
+        "black frame: {:?}",
+        state(black)
+    );
+    // The next frame is tracked against the last good one, in the same map.
+    assert!(pose(black + 1).is_some(), "{:?}", state(black + 1));
+    assert!(matches!(state(unreadable), Lost(why) if why.contains("corrupt")));
+    // After the short gap the camera is still tracked.
+    assert!(
+        pose(125).is_some() || pose(126).is_some(),
+        "{:?}",
+        state(125)
+    );
+    // The textureless stretch is refused frame by frame, then a new map starts, and the
+    // camera is initialised again before the end.
+    for k in textureless.clone() {
+        assert!(matches!(state(k), Lost(_)), "frame {k}: {:?}", state(k));
+    }
+    assert!(
+        (textureless.end..260).any(|k| pose(k).is_some()),
+        "initialised again after the textureless stretch"
+    );
+    assert!(
+        r.warnings.iter().any(|w| w.contains("new map")),
+        "{:?}",
+        r.warnings
+    );
+}
