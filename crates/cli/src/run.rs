@@ -121,7 +121,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let info = sequence.info().clone();
     let sensor = match (args.sensor.as_deref(), &info.camera) {
         (None | Some("stereo"), SensorModel::Stereo(_))
-        | (None | Some("rgbd"), SensorModel::Rgbd(_)) => info.camera.clone(),
+        | (None | Some("rgbd"), SensorModel::Rgbd(_)) => info.camera,
         // A stereo or RGB-D sequence runs monocular on its left / colour image alone.
         (None | Some("mono"), _) => SensorModel::Mono(*info.camera.pinhole()),
         (Some(want), have) => bail!(
@@ -270,7 +270,12 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         output,
     };
     if let SensorModel::Mono(camera) = &sensor {
-        let system = MonoSystem::new(*camera, config, &name)?;
+        let enabled = config.loops.enabled;
+        let loops = config.loops.clone();
+        let mut system = MonoSystem::new(*camera, config, &name)?;
+        if enabled {
+            system = system.with_loop_closure(vocabulary(&loops)?)?;
+        }
         return drive(system, run, settings, Alignment::Sim3, |_| Ok(()));
     }
     let loops = config.loops.clone();
@@ -286,22 +291,7 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
     };
     let mut system = LiveSystem::new(&sensor, config, settings.mode, &name)?;
     if loops.enabled {
-        let orb = loops.place_recognition.orb.params();
-        let root = data::paths::dataset_root();
-        let voc = load_vocabulary(loops.vocabulary.as_deref(), root.as_deref(), &orb)
-            .context("the vocabulary of appearance-based loop closure (loops.vocabulary in --config; loops.enabled: false runs without)")?;
-        println!(
-            "  loop closure: vocabulary of {} words, {}",
-            voc.vocabulary.num_words(),
-            match &voc.origin {
-                VocabularyOrigin::File(p) => format!("from {}", p.display()),
-                VocabularyOrigin::Shipped => "the shipped default".into(),
-                VocabularyOrigin::Cache(p) => format!("cached in {}", p.display()),
-                VocabularyOrigin::Trained { seconds, .. } =>
-                    format!("trained in {seconds:.1} s on the default training images"),
-            }
-        );
-        system = system.with_loop_closure(voc.vocabulary)?;
+        system = system.with_loop_closure(vocabulary(&loops)?)?;
     }
     let dense = |result: &RunResult| -> Result<()> {
         if !settings.dense_ply {
@@ -327,6 +317,26 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         Ok(())
     };
     drive(system, run, settings, Alignment::Se3, dense)
+}
+
+/// The vocabulary of appearance-based loop closure (printed: where it came from).
+fn vocabulary(loops: &system::config::LoopConfig) -> Result<Arc<vision::bow::Vocabulary>> {
+    let orb = loops.place_recognition.orb.params();
+    let root = data::paths::dataset_root();
+    let voc = load_vocabulary(loops.vocabulary.as_deref(), root.as_deref(), &orb)
+        .context("the vocabulary of appearance-based loop closure (loops.vocabulary in --config; loops.enabled: false runs without)")?;
+    println!(
+        "  loop closure: vocabulary of {} words, {}",
+        voc.vocabulary.num_words(),
+        match &voc.origin {
+            VocabularyOrigin::File(p) => format!("from {}", p.display()),
+            VocabularyOrigin::Shipped => "the shipped default".into(),
+            VocabularyOrigin::Cache(p) => format!("cached in {}", p.display()),
+            VocabularyOrigin::Trained { seconds, .. } =>
+                format!("trained in {seconds:.1} s on the default training images"),
+        }
+    );
+    Ok(voc.vocabulary)
 }
 
 /// The stream and where its outputs go, for [`drive`].
@@ -466,7 +476,7 @@ fn drive<S: LiveRun<N>, const N: usize>(
                 .iter()
                 .map(
                     |l| json!({"keyframe": l.keyframe.index(), "old": l.old.index(),
-                "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind})
+                "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind, "scale": l.scale})
                 )
                 .collect::<Vec<_>>()
         ),
@@ -495,6 +505,31 @@ fn drive<S: LiveRun<N>, const N: usize>(
         for line in &e.lines {
             println!("{line}");
         }
+    }
+    for (stem, trajectory) in &result.alternatives {
+        let path = settings.out.join(format!("{stem}.tum"));
+        let mut buf = Vec::new();
+        write_tum(trajectory, &mut buf)?;
+        std::fs::write(&path, buf).with_context(|| format!("writing {}", path.display()))?;
+        if let Some(gt) = ground_truth {
+            let (r, e) = data::trajectory::associate_trajectories(gt, trajectory, 0.02, 0.0);
+            if let Ok(a) = ate(&r, &e, alignment) {
+                println!(
+                    "{stem}: ATE RMSE {:.2} cm ({} poses, {} alignment)",
+                    a.translation.rmse * 100.0,
+                    r.len(),
+                    alignment_name(alignment)
+                );
+            }
+        }
+    }
+    for l in result.loops.iter().filter(|l| l.scale.is_some()) {
+        println!(
+            "loop: frame {} sees the place of frame {}, scale drift {:.3}",
+            l.frames.0,
+            l.frames.1,
+            l.scale.unwrap_or(1.0)
+        );
     }
     write_frame_stats(&settings.out.join(FRAME_STATS_FILE), &result)?;
     write_optimisation_stats(&settings.out.join(OPTIMISATION_STATS_FILE), &result)?;

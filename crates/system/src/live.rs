@@ -100,6 +100,9 @@ pub struct LoopEvent {
     pub frames: (usize, usize),
     /// `"metric"` or `"appearance"`.
     pub kind: &'static str,
+    /// The scale of the loop's similarity (monocular: the scale drift between the two
+    /// places, thesis ch. 5; `None` for a rigid loop).
+    pub scale: Option<f64>,
 }
 
 /// Everything a run produced; `N` is the dimension of a measurement (3: stereo and RGB-D, 2:
@@ -125,6 +128,11 @@ pub struct RunResult<const N: usize = 3> {
     /// What went wrong without stopping the run (an optimisation or a loop closure that
     /// failed, keyframes the loop closer had no room for).
     pub warnings: Vec<String>,
+    /// Further trajectories after the run worth comparing with [`final_trajectory`]
+    /// (monocular: the loops corrected in SE(3) instead of Sim(3)), by file stem.
+    ///
+    /// [`final_trajectory`]: Self::final_trajectory
+    pub alternatives: Vec<(&'static str, Trajectory)>,
 }
 
 /// A live system as the run loop drives it: frames in order, then the result. The stereo /
@@ -667,6 +675,7 @@ impl LiveSystem {
             old,
             frames: (frame_of(keyframe), frame_of(old)),
             kind,
+            scale: None,
         });
     }
 
@@ -794,6 +803,7 @@ impl LiveSystem {
             graph,
             keyframes: store,
             warnings,
+            alternatives: Vec::new(),
         })
     }
 

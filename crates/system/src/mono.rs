@@ -21,27 +21,52 @@
 //! the run says how often it restarted).
 
 use crate::config::{MonoConfig, SystemConfig};
-use crate::keyframes::{KeyframeReason, KeyframeStore};
-use crate::live::{FrameReport, LiveRun, RunResult, SystemError};
+use crate::frame::CornerIndex;
+use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
+use crate::live::{FrameReport, LiveRun, LoopEvent, RunResult, SystemError};
+use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
+use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
 use crate::tracker::TrackerStats;
 use data::output::{FrameRecord, KeyframeRecord, MapPoint, RunRecord, TrackingState};
 use data::trajectory::Trajectory;
 use geom::PinholeCamera;
-use lie::{LieGroup, Se3};
-use nalgebra::Vector2;
+use lie::{LieGroup, Se3, Sim3};
+use nalgebra::{Vector2, Vector3};
 use slam::exploration::{ExplorationConfig, ExplorationError, MonoExplorer, TrackId};
+use slam::loop_closure::correction::correct_graph;
+use slam::loop_closure::{CorrectionGroup, LoopEdge};
+use slam::map::KeyframeId;
+use slam::map::SlamGraph;
+use slam::pose_graph::{PoseGraphJacobian, rigid_from_similarity};
+use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
+use vision::fast::fast9;
 use vision::image::{GrayImage, ImageError};
 use vision::lk::{LkParams, track_forward_backward};
 use vision::pyramid::Pyramid;
 use vision::quadtree::select_corners;
+
+/// A live track: its id and its position in the last frame (pixels).
+pub type Track = (TrackId, [f32; 2]);
+
+/// The live tracks.
+pub type Tracks = Vec<Track>;
+
+/// A frame the tracks could not follow into: `(survived, of)` tracks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Refused {
+    /// Tracks that survived.
+    pub survived: usize,
+    /// Tracks of the previous frame.
+    pub of: usize,
+}
 
 /// Corner tracks through an image sequence (module docs, step 1).
 #[derive(Debug)]
 pub struct CornerTracks {
     config: MonoConfig,
     /// The previous frame's pyramid and its live tracks.
-    previous: Option<(Pyramid, Vec<(TrackId, [f32; 2])>)>,
+    previous: Option<(Pyramid, Tracks)>,
     next: TrackId,
     /// Scratch of the spacing test: per grid cell, the tracks in it.
     grid: Vec<Vec<[f32; 2]>>,
@@ -69,19 +94,25 @@ impl CornerTracks {
         }
     }
 
+    /// A new track at `p` in the last frame (a map point found there by guided search).
+    pub fn adopt(&mut self, p: [f32; 2]) -> Option<TrackId> {
+        let (_, live) = self.previous.as_mut()?;
+        let id = self.next;
+        self.next += 1;
+        live.push((id, p));
+        Some(id)
+    }
+
     /// Forgets every track: the next frame starts afresh (ids keep increasing).
     pub fn reset(&mut self) {
         self.previous = None;
     }
 
     /// Follows the tracks into `image` and replenishes them; returns the live tracks with their
-    /// positions (pixels), or `Ok(Err((survived, of)))` when too few survived
+    /// positions (pixels), or `Ok(Err(Refused))` when too few survived
     /// ([`MIN_SURVIVING_FRACTION`]): the frame is refused and the tracks stay in the previous
     /// one.
-    pub fn push(
-        &mut self,
-        image: &GrayImage,
-    ) -> Result<Result<&[(TrackId, [f32; 2])], (usize, usize)>, ImageError> {
+    pub fn push(&mut self, image: &GrayImage) -> Result<Result<&[Track], Refused>, ImageError> {
         let levels = self.config.levels;
         let pyramid = Pyramid::new(image, levels, 16)?;
         let (w, h) = (image.width() as f32, image.height() as f32);
@@ -89,7 +120,7 @@ impl CornerTracks {
         if let Some((previous, tracks)) = &self.previous {
             let from: Vec<[f32; 2]> = tracks.iter().map(|t| t.1).collect();
             let to = track_forward_backward(
-                &previous,
+                previous,
                 &pyramid,
                 &from,
                 &LkParams {
@@ -111,7 +142,10 @@ impl CornerTracks {
             }
             let of = tracks.len();
             if (live.len() as f64) < MIN_SURVIVING_FRACTION * of as f64 {
-                return Ok(Err((live.len(), of)));
+                return Ok(Err(Refused {
+                    survived: live.len(),
+                    of,
+                }));
             }
         }
         if (live.len() as f64) < REPLENISH_FRACTION * self.config.tracks as f64 {
@@ -123,7 +157,7 @@ impl CornerTracks {
 
     /// New corners, in the quadtree's order, at least `track_spacing` from every track, until
     /// `tracks` live.
-    fn replenish(&mut self, image: &GrayImage, live: &mut Vec<(TrackId, [f32; 2])>) {
+    fn replenish(&mut self, image: &GrayImage, live: &mut Tracks) {
         let (_, selected) = select_corners(
             image,
             self.config.fast_threshold,
@@ -164,7 +198,12 @@ impl CornerTracks {
 }
 
 /// The exploration's parameters for a `width`×`height` camera from the system's.
-pub fn exploration_config(config: &SystemConfig, width: usize, height: usize) -> ExplorationConfig {
+pub fn exploration_config(
+    config: &SystemConfig,
+    focal: f64,
+    width: usize,
+    height: usize,
+) -> ExplorationConfig {
     let m = &config.mono;
     ExplorationConfig {
         sigma: config.pixel_noise,
@@ -178,6 +217,17 @@ pub fn exploration_config(config: &SystemConfig, width: usize, height: usize) ->
         // The depth error alone decides when the bootstrap has parallax enough.
         min_bootstrap_parallax: 0.0,
         max_bootstrap_frames: m.max_bootstrap_frames,
+        double_window: m.double_window.then(|| {
+            let mut p = slam::dwo::DwoParams::new(
+                config.optimiser.inner,
+                config.optimiser.outer,
+                focal,
+                config.pixel_noise,
+            );
+            p.iterations = config.optimiser.iterations;
+            p
+        }),
+        theta: config.mapping.theta,
         ..ExplorationConfig::default()
     }
 }
@@ -196,7 +246,109 @@ pub struct MonoSystem {
     lost_maps: usize,
     /// Frames refused in a row by the corner tracks.
     refused: usize,
+    /// The current map's keyframe images (the templates of the guided search).
+    images: std::collections::HashMap<KeyframeId, KeyframeImages>,
+    /// The first frame of a bootstrap in progress: its images become the first keyframe's.
+    bootstrap_first: Option<KeyframeImages>,
+    scratch: SearchScratch,
     warnings: Vec<String>,
+    /// Large loops by appearance, once a vocabulary is given.
+    loops: Option<MonoLoops>,
+    events: Vec<LoopEvent>,
+    /// Loops verified by appearance but refused: they needed more drift than the path allows.
+    rejected_loops: usize,
+    /// Per tracked frame: its position in the record, the last keyframe then, and the frame's
+    /// pose relative to it (for the trajectory after the loops' correction).
+    relative: Vec<(usize, KeyframeId, Se3)>,
+}
+
+/// Large loops by appearance in a monocular map (thesis ch. 5): each keyframe's ORB words and
+/// map-point depths go into the database; a loop is verified by kNN depth regression and a
+/// 3-point Sim(3) RANSAC (`place_recognition`, [`Alignment::Sim3`]), its scale is the scale
+/// drift between the two places, and the loops correct the map at the end of the run.
+struct MonoLoops {
+    place: PlaceRecognition,
+    /// `(old, current, current_from_old)` of every loop accepted.
+    edges: Vec<(KeyframeId, KeyframeId, Sim3)>,
+    /// The latest run of mutually consistent detections, and whether it was accepted.
+    chain: Vec<(KeyframeId, KeyframeId, Sim3)>,
+    accepted: bool,
+}
+
+/// Detections in a row that must agree before a loop is accepted (3: a repetitive place —
+/// the same façade, a corridor like another — can pass the appearance and 3-point checks
+/// once or twice, but its successive detections jump between unrelated old places; a real
+/// revisit keeps finding the old trajectory where the odometry since the last detection says
+/// it should be).
+const LOOP_CONSISTENCY: usize = 3;
+
+/// Two detections agree when the second's similarity matches the first's carried by the
+/// odometry on both sides within these: 5° of rotation, 10 % of scale, and a tenth of the old
+/// keyframe's median scene depth of translation (the keyframe criterion's 10 %).
+const LOOP_AGREEMENT: (f64, f64, f64) = (5.0, 0.1, 0.1);
+
+/// A loop may move the current keyframe by at most this fraction of the path travelled since
+/// the old keyframe (0.1: monocular odometry drifts by a few per cent of the distance — 1.7 %
+/// on the rendered building loop, 1–3 % in the literature — so a loop that needs ten per cent
+/// joins two places that only look alike, as the corridors of a building do).
+const MAX_DRIFT_FRACTION: f64 = 0.1;
+
+/// Whether the loop `k_from_old` between keyframes `old` and `k` moves `k` by no more than
+/// the drift the path between them allows ([`MAX_DRIFT_FRACTION`]).
+fn loop_within_drift(
+    graph: &SlamGraph<2>,
+    old: KeyframeId,
+    k: KeyframeId,
+    k_from_old: &Sim3,
+) -> bool {
+    let centre = |t: &Sim3| t.inverse().act(&Vector3::zeros());
+    let (Ok(t_old), Ok(t_k)) = (graph.pose(old), graph.pose(k)) else {
+        return false;
+    };
+    let implied = centre(&k_from_old.compose(&t_old));
+    let mut path = 0.0;
+    let mut previous: Option<Vector3<f64>> = None;
+    for i in old.index().min(k.index())..=old.index().max(k.index()) {
+        if let Ok(t) = graph.pose(KeyframeId::from_index(i)) {
+            let c = centre(&t);
+            if let Some(p) = previous {
+                path += (c - p).norm();
+            }
+            previous = Some(c);
+        }
+    }
+    (implied - centre(&t_k)).norm() <= MAX_DRIFT_FRACTION * path
+}
+
+/// Whether detection `b` (`k_from_old`) agrees with the earlier `a` through the map's
+/// relative poses (the odometry is locally accurate on both sides of a loop).
+fn loops_agree(
+    graph: &SlamGraph<2>,
+    a: &(KeyframeId, KeyframeId, Sim3),
+    b: &(KeyframeId, KeyframeId, Sim3),
+) -> bool {
+    let rel = |x: KeyframeId, y: KeyframeId| -> Option<Sim3> {
+        Some(graph.pose(x).ok()?.compose(&graph.pose(y).ok()?.inverse()))
+    };
+    let (Some(cur), Some(old)) = (rel(b.0, a.0), rel(a.1, b.1)) else {
+        return false;
+    };
+    // x_kb = T_kb,ka · S_a · T_olda,oldb · x_oldb.
+    let predicted = cur.compose(&a.2).compose(&old);
+    let delta = predicted.inverse().compose(&b.2);
+    let mut depths: Vec<f64> = slam::loop_closure::constraint::depth_samples(graph, b.1)
+        .into_iter()
+        .map(|(_, d)| d)
+        .collect();
+    if depths.is_empty() {
+        return false;
+    }
+    depths.sort_by(f64::total_cmp);
+    let depth = depths[depths.len() / 2];
+    let (rotation_deg, scale, translation) = LOOP_AGREEMENT;
+    delta.rotation().log().norm().to_degrees() <= rotation_deg
+        && delta.scale().ln().abs() <= scale
+        && delta.translation().norm() <= translation * depth
 }
 
 impl MonoSystem {
@@ -221,8 +373,112 @@ impl MonoSystem {
             finished: Vec::new(),
             lost_maps: 0,
             refused: 0,
+            images: Default::default(),
+            bootstrap_first: None,
+            scratch: SearchScratch::default(),
+            loops: None,
+            events: Vec::new(),
+            rejected_loops: 0,
+            relative: Vec::new(),
             warnings: Vec::new(),
         })
+    }
+
+    /// Closes large loops by appearance with `vocabulary` (unless `loops.enabled` is false).
+    /// Call before the first frame.
+    pub fn with_loop_closure(
+        mut self,
+        vocabulary: std::sync::Arc<vision::bow::Vocabulary>,
+    ) -> Result<Self, SystemError> {
+        if !self.config.loops.enabled {
+            return Ok(self);
+        }
+        let config = PlaceRecognitionConfig {
+            alignment: Alignment::Sim3,
+            pixel_sigma: self.config.pixel_noise,
+            ..self.config.loops.place_recognition.clone()
+        };
+        self.loops = Some(MonoLoops {
+            place: PlaceRecognition::new(vocabulary, config)?,
+            edges: Vec::new(),
+            chain: Vec::new(),
+            accepted: false,
+        });
+        Ok(self)
+    }
+
+    /// A new keyframe into place recognition, and its loop with an old place if one is
+    /// verified (recorded; the correction comes at the end of the run).
+    fn close_loop(&mut self, k: KeyframeId, image: &GrayImage, frame: usize) {
+        let (Some(loops), Some(explorer)) = (self.loops.as_mut(), self.explorer.as_ref()) else {
+            return;
+        };
+        let map = explorer.map();
+        let samples = slam::loop_closure::constraint::depth_samples(&map.graph, k);
+        if let Err(e) = loops
+            .place
+            .add_monocular_keyframe(k, image, samples, &self.camera)
+        {
+            self.warnings
+                .push(format!("place recognition at frame {frame}: {e}"));
+            return;
+        }
+        // Topologically close: the last keyframes and every keyframe sharing a point with k.
+        let mut excluded: BTreeSet<KeyframeId> =
+            (k.index().saturating_sub(self.config.mono.loop_exclusion)..=k.index())
+                .map(KeyframeId::from_index)
+                .collect();
+        if let Some(kf) = map.graph.keyframe(k) {
+            for p in kf.observations().keys() {
+                if let Some(pt) = map.graph.point(*p) {
+                    excluded.extend(pt.observers().iter().copied());
+                }
+            }
+        }
+        match loops.place.detect(k, &excluded) {
+            Ok(Some(c)) if !loop_within_drift(&map.graph, c.old, k, &c.query_from_old) => {
+                self.rejected_loops += 1;
+            }
+            Ok(Some(c)) => {
+                let detection = (c.old, k, c.query_from_old);
+                // Consistent with the last detection, if that was a few keyframes ago.
+                let follows = loops.chain.last().is_some_and(|last| {
+                    k.index() - last.1.index() <= LOOP_CONSISTENCY
+                        && loops_agree(
+                            &map.graph,
+                            &(last.1, last.0, last.2),
+                            &(k, c.old, c.query_from_old),
+                        )
+                });
+                if !follows {
+                    loops.chain.clear();
+                    loops.accepted = false;
+                }
+                loops.chain.push(detection);
+                let newly: Vec<(KeyframeId, KeyframeId, Sim3)> = if loops.accepted {
+                    vec![detection]
+                } else if loops.chain.len() >= LOOP_CONSISTENCY {
+                    loops.accepted = true;
+                    loops.chain.clone()
+                } else {
+                    Vec::new()
+                };
+                for (old, current, current_from_old) in newly {
+                    loops.edges.push((old, current, current_from_old));
+                    self.events.push(LoopEvent {
+                        keyframe: current,
+                        old,
+                        frames: (map.keyframe(current).frame, map.keyframe(old).frame),
+                        kind: "appearance",
+                        scale: Some(current_from_old.scale()),
+                    });
+                }
+            }
+            Ok(None) => {}
+            Err(e) => self
+                .warnings
+                .push(format!("loop detection at frame {frame}: {e}")),
+        }
     }
 
     /// Ends the current map and starts again at the next frame.
@@ -235,9 +491,32 @@ impl MonoSystem {
             self.warnings.push(why);
         }
         self.tracks.reset();
+        self.images.clear();
+        self.bootstrap_first = None;
+        // A new map numbers its keyframes anew: the database starts empty, and the loops
+        // found in the old map are gone with it.
+        if let Some(loops) = self.loops.as_mut()
+            && let Ok(place) = PlaceRecognition::new(
+                loops.place.vocabulary().clone(),
+                loops.place.config().clone(),
+            )
+        {
+            loops.place = place;
+            loops.edges.clear();
+            loops.chain.clear();
+            loops.accepted = false;
+        }
+        self.events.clear();
+        self.relative.clear();
     }
 
     fn push(&mut self, report: FrameReport, frame: &data::sequence::Frame, pose: Option<Se3>) {
+        if let (Some(pose), Some(explorer)) = (pose, &self.explorer)
+            && let Some(last) = explorer.map().keyframe_ids().last()
+        {
+            let rel = pose.compose(&explorer.map().rigid_pose(last).inverse());
+            self.relative.push((self.record.frames.len(), last, rel));
+        }
         self.record.frames.push(FrameRecord {
             index: frame.index,
             timestamp: frame.timestamp,
@@ -248,6 +527,124 @@ impl MonoSystem {
         self.reports.push(report);
     }
 }
+
+/// A mono keyframe's images: the grey image (the search's templates) and the colour.
+fn keyframe_images(frame: &data::sequence::Frame) -> KeyframeImages {
+    KeyframeImages {
+        frame_index: frame.index,
+        timestamp: frame.timestamp,
+        gray: frame.gray().clone(),
+        depth: None,
+        colour: frame.colour().cloned(),
+    }
+}
+
+impl MonoSystem {
+    /// Searches the map points of the keyframes near the predicted pose that no track measures
+    /// (config `mono.refind`); each one found joins the frame's measurements — on the track
+    /// already following that corner if it is not a feature, else on a new track — and is
+    /// associated with its point in the exploration. Returns how many were found.
+    fn refind(
+        &mut self,
+        frame: usize,
+        image: &GrayImage,
+        measurements: &mut Vec<(TrackId, Vector2<f64>)>,
+    ) -> usize {
+        let config = &self.config;
+        if !config.mono.refind {
+            return 0;
+        }
+        let Some(explorer) = self.explorer.as_mut() else {
+            return 0;
+        };
+        let Some(pose) = explorer.predicted_pose(frame) else {
+            return 0;
+        };
+        let (w, h) = (image.width(), image.height());
+        let max_angle = config.tracker.max_view_angle_deg.to_radians();
+        let todo: Vec<(SearchPoint, Vector2<f64>)> = {
+            let map = explorer.map();
+            let centre = |t: &Se3| t.inverse().act(&Vector3::zeros());
+            let axis = |t: &Se3| t.rotation().inverse().act(&Vector3::z());
+            let (c, a) = (centre(&pose), axis(&pose));
+            let mut near: Vec<(f64, KeyframeId)> = map
+                .keyframe_ids()
+                .filter_map(|k| {
+                    let t = map.rigid_pose(k);
+                    (axis(&t).angle(&a) <= max_angle).then(|| ((centre(&t) - c).norm(), k))
+                })
+                .collect();
+            near.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            near.truncate(config.mono.refind_keyframes);
+            let keyframes: Vec<KeyframeId> = near.into_iter().map(|(_, k)| k).collect();
+            let active: std::collections::HashSet<_> =
+                explorer.active().values().copied().collect();
+            map.graph
+                .points_visible_from(&keyframes)
+                .into_iter()
+                .filter(|p| !active.contains(p))
+                .filter_map(|p| SearchPoint::from_graph(&map.graph, p))
+                .filter(|sp| view_angle(&pose, sp) <= max_angle)
+                .filter_map(|sp| predict(&self.camera, &pose, &sp, w, h, 8.0).map(|(u, _)| (sp, u)))
+                .take(config.mono.max_refind)
+                .collect()
+        };
+        if todo.is_empty() {
+            return 0;
+        }
+        let corners = CornerIndex::new(
+            fast9(image, config.tracker.fast_threshold, true),
+            w,
+            h,
+            16.0,
+        );
+        let radius = config.tracker.wide_search_radius;
+        let mut found = 0;
+        for (sp, _) in todo {
+            let Some(anchor) = self.images.get(&sp.anchor) else {
+                continue;
+            };
+            let Some(m) = search(
+                &self.camera,
+                &pose,
+                &sp,
+                anchor,
+                image,
+                &corners,
+                radius,
+                config.tracker.min_ncc,
+                &mut self.scratch,
+            ) else {
+                continue;
+            };
+            // The corner may already be followed by a track: reuse it unless it is a feature
+            // (then it measures another point or a filter, and this match is ambiguous).
+            let existing = measurements
+                .iter()
+                .find(|(_, z)| (z - m).norm() < SAME_CORNER_PX)
+                .map(|(t, _)| *t);
+            let track = match existing {
+                Some(t) if explorer.is_feature(t) => continue,
+                Some(t) => t,
+                None => {
+                    let Some(t) = self.tracks.adopt([m.x as f32, m.y as f32]) else {
+                        continue;
+                    };
+                    measurements.push((t, m));
+                    t
+                }
+            };
+            if explorer.associate(track, sp.point) {
+                found += 1;
+            }
+        }
+        found
+    }
+}
+
+/// A match this close to a track's position is the corner the track follows (2 px: LK and the
+/// sub-pixel refinement each localise a corner to a fraction of a pixel).
+const SAME_CORNER_PX: f64 = 2.0;
 
 impl LiveRun<2> for MonoSystem {
     fn process(&mut self, frame: data::sequence::Frame) -> Result<FrameReport, SystemError> {
@@ -273,7 +670,7 @@ impl LiveRun<2> for MonoSystem {
                 self.refused = 0;
                 m
             }
-            Err((survived, of)) => {
+            Err(Refused { survived, of }) => {
                 self.refused += 1;
                 let mut why = format!(
                     "only {survived} of {of} corner tracks followed into this frame: refused"
@@ -298,14 +695,40 @@ impl LiveRun<2> for MonoSystem {
                 return Ok(report);
             }
         };
+        let mut measurements = measurements;
+        let t = Instant::now();
+        let refound = self.refind(frame.index, image, &mut measurements);
+        if self.explorer.is_some() && self.config.mono.refind {
+            self.record
+                .timings
+                .record("mono: re-find map points", t.elapsed());
+        }
         let n_tracks = measurements.len();
         let t = Instant::now();
         let camera = self.camera;
-        let config = exploration_config(&self.config, width, height);
+        let config = exploration_config(&self.config, camera.fx, width, height);
+        if self.explorer.is_none() {
+            self.bootstrap_first = Some(keyframe_images(&frame));
+        }
         let explorer = self
             .explorer
             .get_or_insert_with(|| MonoExplorer::new(camera, config));
         let outcome = explorer.process(frame.index, &measurements);
+        if let Ok(o) = &outcome
+            && let Some(k) = o.keyframe
+        {
+            if let Some(first) = self.bootstrap_first.take() {
+                self.images.insert(KeyframeId::from_index(0), first);
+            }
+            self.images.insert(k, keyframe_images(&frame));
+            let t = Instant::now();
+            self.close_loop(k, frame.gray(), frame.index);
+            if self.loops.is_some() {
+                self.record
+                    .timings
+                    .record("keyframe: place recognition", t.elapsed());
+            }
+        }
         let time_tracking = start.elapsed();
         self.record.timings.record("mono: exploration", t.elapsed());
         let (state, pose, keyframe, stats) = match outcome {
@@ -329,12 +752,13 @@ impl LiveRun<2> for MonoSystem {
                     KeyframeReason::Exploration
                 };
                 let stats = o.camera_from_world.map(|_| TrackerStats {
-                    // The tracks are the candidates; the map points among them are searched
-                    // (LK already found them) and the motion-only BA keeps them all (Huber).
+                    // The tracks are the candidates; the map points among them are measured
+                    // (by LK, or found again by guided search) and the motion-only BA keeps
+                    // them all (Huber).
                     candidates: n_tracks,
                     visible: n_tracks,
                     searched: o.tracked,
-                    found: o.tracked,
+                    found: o.tracked.max(refound),
                     inliers: o.tracked,
                 });
                 (
@@ -410,47 +834,141 @@ impl LiveRun<2> for MonoSystem {
             .iter()
             .map(|f| (f.index, f.timestamp))
             .collect();
-        let mut poses = std::mem::take(&mut self.finished);
-        let graph = match &self.explorer {
-            Some(explorer) => {
-                poses.extend(explorer.frame_poses());
-                let map = explorer.map();
-                self.record.keyframes = map
-                    .keyframe_ids()
-                    .map(|k| {
-                        let frame = map.keyframe(k).frame;
-                        KeyframeRecord {
-                            id: k.index(),
-                            frame_index: frame,
-                            timestamp: timestamp.get(&frame).copied().unwrap_or(f64::NAN),
-                            world_from_camera: map.rigid_pose(k).inverse(),
-                        }
-                    })
-                    .collect();
-                self.record.points = map
-                    .graph
-                    .points()
-                    .filter_map(|(p, _)| {
-                        Some(MapPoint {
-                            position: map.graph.point_world(p).ok()?,
-                            colour: None,
-                        })
-                    })
-                    .collect();
-                map.graph.clone()
-            }
-            None => Default::default(),
-        };
-        let mut final_trajectory = Trajectory::default();
-        for (frame, camera_from_world) in poses {
-            if let Some(&t) = timestamp.get(&frame) {
-                final_trajectory.timestamps.push(t);
-                final_trajectory
-                    .world_from_body
-                    .push(camera_from_world.inverse());
-            }
-        }
         let mut warnings = std::mem::take(&mut self.warnings);
+        // Earlier maps' frames as they were left; the current map's after its loops'
+        // correction (in `mono.loop_correction`'s group, the other one as an alternative).
+        let earlier = std::mem::take(&mut self.finished);
+        let mut trajectories: Vec<(&'static str, Vec<(usize, Se3)>)> = Vec::new();
+        let mut graph = SlamGraph::default();
+        if let Some(explorer) = self.explorer.take() {
+            let poses = explorer.frame_poses();
+            let map = explorer.into_map();
+            let edges: Vec<LoopEdge> = self
+                .loops
+                .as_ref()
+                .map(|l| {
+                    l.edges
+                        .iter()
+                        .map(|&(old, current, current_from_old)| LoopEdge {
+                            old: old.index(),
+                            current: current.index(),
+                            old_from_current: current_from_old.inverse(),
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            let primary = if self.config.mono.loop_correction == "se3" {
+                CorrectionGroup::Se3
+            } else {
+                CorrectionGroup::Sim3
+            };
+            let groups: &[CorrectionGroup] = if edges.is_empty() {
+                &[]
+            } else if primary == CorrectionGroup::Sim3 {
+                &[CorrectionGroup::Sim3, CorrectionGroup::Se3]
+            } else {
+                &[CorrectionGroup::Se3, CorrectionGroup::Sim3]
+            };
+            let keyframe_of: std::collections::HashMap<usize, KeyframeId> = map
+                .keyframe_ids()
+                .map(|k| (map.keyframe(k).frame, k))
+                .collect();
+            let relative: std::collections::HashMap<usize, (KeyframeId, Se3)> = self
+                .relative
+                .iter()
+                .map(|&(i, k, rel)| (self.record.frames[i].index, (k, rel)))
+                .collect();
+            // Every frame of the map in a corrected graph: a keyframe as corrected, another
+            // frame relative to its keyframe.
+            let reexpress = |g: &SlamGraph<2>| -> Vec<(usize, Se3)> {
+                poses
+                    .iter()
+                    .map(|&(f, tracked)| {
+                        let pose = match (keyframe_of.get(&f), relative.get(&f)) {
+                            (Some(&k), _) => g.pose(k).ok().map(|s| rigid_from_similarity(&s)),
+                            (None, Some(&(k, rel))) => g
+                                .pose(k)
+                                .ok()
+                                .map(|s| rigid_from_similarity(&Sim3::from_se3(&rel).compose(&s))),
+                            _ => None,
+                        };
+                        (f, pose.unwrap_or(tracked))
+                    })
+                    .collect()
+            };
+            let mut corrected_graph = map.graph.clone();
+            for (i, &group) in groups.iter().enumerate() {
+                let mut g = map.graph.clone();
+                let options = lsq::SolverOptions {
+                    max_iterations: 50,
+                    threads: Some(1),
+                    ..lsq::SolverOptions::default()
+                };
+                let jacobian = PoseGraphJacobian::Analytic(lie::LogJacobian::Exact);
+                match correct_graph(&mut g, &edges, group, jacobian, &options) {
+                    Ok(_) => {
+                        let name = match group {
+                            CorrectionGroup::Sim3 => "trajectory_final_sim3",
+                            CorrectionGroup::Se3 => "trajectory_final_se3",
+                        };
+                        trajectories.push((name, reexpress(&g)));
+                        if i == 0 {
+                            corrected_graph = g;
+                        }
+                    }
+                    Err(e) => warnings.push(format!("loop correction in {group:?}: {e}")),
+                }
+            }
+            if trajectories.is_empty() {
+                trajectories.push(("trajectory_final", reexpress(&map.graph)));
+            }
+            graph = corrected_graph;
+            self.record.keyframes = map
+                .keyframe_ids()
+                .filter_map(|k| {
+                    let frame = map.keyframe(k).frame;
+                    Some(KeyframeRecord {
+                        id: k.index(),
+                        frame_index: frame,
+                        timestamp: timestamp.get(&frame).copied().unwrap_or(f64::NAN),
+                        world_from_camera: rigid_from_similarity(&graph.pose(k).ok()?).inverse(),
+                    })
+                })
+                .collect();
+            self.record.points = graph
+                .points()
+                .filter_map(|(p, _)| {
+                    Some(MapPoint {
+                        position: graph.point_world(p).ok()?,
+                        colour: None,
+                    })
+                })
+                .collect();
+        }
+        let to_trajectory = |poses: &[(usize, Se3)]| {
+            let mut t = Trajectory::default();
+            for (frame, camera_from_world) in earlier.iter().chain(poses) {
+                if let Some(&ts) = timestamp.get(frame) {
+                    t.timestamps.push(ts);
+                    t.world_from_body.push(camera_from_world.inverse());
+                }
+            }
+            t
+        };
+        let final_trajectory = to_trajectory(trajectories.first().map_or(&[][..], |t| &t.1));
+        let alternatives = trajectories
+            .iter()
+            .skip(1)
+            .map(|(name, poses)| (*name, to_trajectory(poses)))
+            .collect();
+        if self.rejected_loops > 0 {
+            warnings.push(format!(
+                "{} loops found by appearance were refused: each needed more than {:.0} % of \
+                 the path since the old place as drift (a place that looks like another)",
+                self.rejected_loops,
+                MAX_DRIFT_FRACTION * 100.0
+            ));
+        }
         if self.lost_maps > 0 {
             warnings.push(format!(
                 "tracking lost its map {} times and started a new one; the outputs hold the \
@@ -462,11 +980,70 @@ impl LiveRun<2> for MonoSystem {
             record: self.record,
             final_trajectory,
             frames: self.reports,
-            loops: Vec::new(),
+            loops: self.events,
             optimisations: Vec::new(),
             graph,
             keyframes: KeyframeStore::new(),
             warnings,
+            alternatives,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Keyframes every metre along x, looking along z, one point 5 m ahead of each.
+    fn corridor(n: usize) -> SlamGraph<2> {
+        let mut g = SlamGraph::default();
+        for i in 0..n {
+            let world_from_camera =
+                Se3::new(lie::So3::identity(), Vector3::new(i as f64, 0.0, 0.0));
+            let k = g.add_keyframe(Sim3::from_se3(&world_from_camera.inverse()));
+            g.add_point(k, Vector3::new(0.0, 0.0, 0.2), Vector2::new(320.0, 240.0))
+                .unwrap();
+        }
+        g
+    }
+
+    #[test]
+    fn a_loop_needing_more_drift_than_the_path_allows_is_refused() {
+        let g = corridor(41);
+        let (old, k) = (KeyframeId::from_index(0), KeyframeId::from_index(40));
+        let pose = |k: KeyframeId| g.pose(k).unwrap();
+        // The loop says keyframe 40 is 2 m from where the map has it (5 % of the 40 m path):
+        // accepted; 6 m (15 %): refused.
+        for (offset, accepted) in [(2.0, true), (6.0, false)] {
+            let truth = Se3::new(lie::So3::identity(), Vector3::new(40.0 + offset, 0.0, 0.0));
+            let k_from_old = Sim3::from_se3(&truth.inverse()).compose(&pose(old).inverse());
+            assert_eq!(
+                loop_within_drift(&g, old, k, &k_from_old),
+                accepted,
+                "offset {offset}"
+            );
+        }
+    }
+
+    #[test]
+    fn successive_detections_agree_only_when_the_odometry_carries_one_into_the_other() {
+        let g = corridor(20);
+        let id = KeyframeId::from_index;
+        let pose = |k: usize| g.pose(id(k)).unwrap();
+        // Keyframes 15 and 16 see the places of 2 and 3, 0.5 m off in x (drift).
+        let shift = Sim3::from_se3(&Se3::new(
+            lie::So3::identity(),
+            Vector3::new(-0.5, 0.0, 0.0),
+        ));
+        let s = |k: usize, old: usize| shift.compose(&pose(k)).compose(&pose(old).inverse());
+        let a = (id(15), id(2), s(15, 2));
+        assert!(loops_agree(&g, &a, &(id(16), id(3), s(16, 3))));
+        // A second detection that jumps to an unrelated place (keyframe 9) does not agree.
+        assert!(!loops_agree(&g, &a, &(id(16), id(9), s(16, 3))));
+        // Nor one whose scale differs by 30 %.
+        let scaled = Sim3::new(lie::So3::identity(), Vector3::zeros(), 1.3)
+            .unwrap()
+            .compose(&s(16, 3));
+        assert!(!loops_agree(&g, &a, &(id(16), id(3), scaled)));
     }
 }

@@ -106,6 +106,16 @@ pub struct ExplorationConfig {
     pub ransac: RansacConfig,
     /// Seed of the quadtree traversal.
     pub seed: u64,
+    /// Optimise each new keyframe by double window optimisation (thesis §6.2.7, the monocular
+    /// double window: scale fixed, the inner window's points and poses by BA, the outer
+    /// window's poses by pose-pose constraints, both found by covisibility from the new
+    /// keyframe, so points measured again on a revisit pull old keyframes in) instead of the
+    /// sliding window of the last `window` keyframes (`None`, the thesis ch. 3 explorer).
+    pub double_window: Option<crate::dwo::DwoParams>,
+    /// With the double window: a new keyframe's covisibility edges (local registration,
+    /// thesis §6.2.6) go to the keyframes sharing at least this many points with it, and
+    /// always to the previous keyframe.
+    pub theta: usize,
 }
 
 impl Default for ExplorationConfig {
@@ -134,6 +144,8 @@ impl Default for ExplorationConfig {
             max_bootstrap_frames: 30,
             ransac: RansacConfig::default(),
             seed: 0,
+            double_window: None,
+            theta: 20,
         }
     }
 }
@@ -301,6 +313,7 @@ pub struct MonoExplorer {
     keyframe_of_frame: HashMap<usize, KeyframeId>,
     frame_poses: Vec<(usize, Se3)>,
     state: State,
+    double_window: Option<crate::dwo::DoubleWindowOptimiser>,
 }
 
 fn solver(iterations: usize) -> SolverOptions {
@@ -328,6 +341,10 @@ impl MonoExplorer {
         };
         MonoExplorer {
             camera,
+            double_window: config
+                .double_window
+                .clone()
+                .map(crate::dwo::DoubleWindowOptimiser::new),
             filters: FeatureFilters::new(camera, fi),
             config,
             map: ExploredMap::default(),
@@ -353,6 +370,48 @@ impl MonoExplorer {
                 None => (*f, *t),
             })
             .collect()
+    }
+
+    /// The pose predicted for `frame` by constant velocity from the last tracked frame (`None`
+    /// before the bootstrap, or for a frame not after the last one).
+    pub fn predicted_pose(&self, frame: usize) -> Option<Se3> {
+        match &self.state {
+            State::Tracking {
+                last_frame,
+                last_pose,
+                velocity,
+            } if frame > *last_frame => {
+                let steps = (frame - last_frame) as f64;
+                Some(Se3::exp(&(velocity.log() * steps)).compose(last_pose))
+            }
+            _ => None,
+        }
+    }
+
+    /// The map points measured in the last frame, by track.
+    pub fn active(&self) -> &HashMap<TrackId, PointId> {
+        &self.active
+    }
+
+    /// The track that measures `point`'s feature as a filter (an id of [`FeatureFilters`]), if
+    /// any; a track with a filter or a map point is a feature.
+    pub fn is_feature(&self, track: TrackId) -> bool {
+        self.active.contains_key(&track) || self.filter_of_track.contains_key(&track)
+    }
+
+    /// Declares that `track` measures the map point `point` from the next processed frame on:
+    /// a point the front-end found again (guided search on a revisit, thesis §6.2.5) rejoins
+    /// tracking, the keyframes' measurements and the window BA. A filter the track had is
+    /// dropped. `false` if the point does not exist or another track already measures it.
+    pub fn associate(&mut self, track: TrackId, point: PointId) -> bool {
+        if self.map.graph.point(point).is_none() || self.active.values().any(|&p| p == point) {
+            return false;
+        }
+        if let Some(id) = self.filter_of_track.remove(&track) {
+            self.filters.remove(id);
+        }
+        self.active.insert(track, point);
+        true
     }
 
     /// Number of running feature filters.
@@ -567,6 +626,13 @@ impl MonoExplorer {
         let k1 = self.map.add_keyframe(frame, second, measurements);
         self.keyframe_of_frame.insert(first, k0);
         self.keyframe_of_frame.insert(frame, k1);
+        if self.double_window.is_some() {
+            // The double window walks the covisibility edges; the points come below.
+            self.map
+                .graph
+                .add_edge(k0, k1, Some(Sim3::from_se3(&second)))
+                .map_err(|e| e.to_string())?;
+        }
         for ((i, _), p) in pts.iter().zip(points) {
             let Some(point) = self.map.add_point(tracks[*i], k0, &p, z_a[*i]) else {
                 continue;
@@ -668,7 +734,27 @@ impl MonoExplorer {
         let mut pose = pose;
         if let Some(k) = keyframe {
             started = self.start_features(k, frame, measurements);
-            self.window_ba()?;
+            match &mut self.double_window {
+                Some(dwo) => {
+                    let graph = &mut self.map.graph;
+                    let previous = KeyframeId::from_index(k.index().saturating_sub(1));
+                    crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
+                        .and_then(|_| graph.set_reference(k))
+                        .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+                    dwo.optimise(graph, &self.camera)
+                        .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+                    // The filters' anchors moved with their keyframes.
+                    let anchors: HashSet<usize> =
+                        self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
+                    for a in anchors {
+                        if let Some(&ka) = self.keyframe_of_frame.get(&a) {
+                            let t = self.map.rigid_pose(ka);
+                            self.filters.set_anchor_pose(a, t);
+                        }
+                    }
+                }
+                None => self.window_ba()?,
+            }
             pose = self.map.rigid_pose(k);
         }
         self.frame_poses.push((frame, pose));
