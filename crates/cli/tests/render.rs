@@ -47,6 +47,7 @@ fn truth(scene: SceneKind, sensor: SensorModel, seed: u64, frames: usize) -> Seq
         sensor,
         seed,
         frames: Some(frames),
+        revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
     })
     .unwrap()
 }
