@@ -72,6 +72,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         sensor,
         seed: args.seed,
         frames: Some(args.frames),
+        revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
     })
     .context("setting up the rendered room")?;
     args::output_dir(&args.out, "--out")?;

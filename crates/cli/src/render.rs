@@ -63,6 +63,14 @@ pub struct RenderArgs {
     /// Seed of the textures, the trajectory's variations and the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Room only: scale of how far each revisit of a view strays from the last (1 = the default
+    /// browsing, each visit within ±0.15 m of position and ±0.25 m of gaze target, about one
+    /// keyframe-coverage radius, so every lap makes new views; 0 = exactly the same views).
+    /// Use e.g. 0.25 for a browsing where each revisit returns to nearly the same view, so the
+    /// room can be fully mapped and the keyframe count should stop growing (thesis §6.5.2).
+    /// The order of the views, the hand's shake and the roll are unchanged.
+    #[arg(long, value_name = "F", allow_negative_numbers = true)]
+    pub revisit_jitter: Option<f64>,
     /// Output layout (default: tum for rgbd, euroc for stereo, kitti for mono).
     #[arg(long, value_enum)]
     pub layout: Option<LayoutArg>,
@@ -164,6 +172,20 @@ fn parse_radtan(spec: &str) -> Result<RadTan> {
     Ok(RadTan::new(*k1, *k2, *p1, *p2))
 }
 
+/// `--revisit-jitter`: finite, ≥ 0, and for the room only (the default otherwise).
+fn revisit_jitter(scene: SceneArg, value: Option<f64>) -> Result<f64> {
+    let Some(j) = value else {
+        return Ok(sim::render::DEFAULT_REVISIT_JITTER);
+    };
+    if !(j.is_finite() && j >= 0.0) {
+        bail!("--revisit-jitter expects a finite scale of at least 0, got {j}");
+    }
+    if scene != SceneArg::Room {
+        bail!("--revisit-jitter scales the room's browsing: it needs the room scene");
+    }
+    Ok(j)
+}
+
 /// The layout a sensor is written in by default, and whether a layout fits a sensor.
 fn layout_for(sensor: SensorArg, layout: Option<LayoutArg>, distorted: bool) -> Result<LayoutArg> {
     let layout = layout.unwrap_or(match sensor {
@@ -261,6 +283,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         bail!("--threads must be at least 1");
     }
     crate::args::positive(args.baseline, "--baseline (metres)")?;
+    let revisit_jitter = revisit_jitter(args.scene, args.revisit_jitter)?;
     let kind = match args.sensor {
         SensorArg::Mono => SensorKind::Mono,
         SensorArg::Stereo => SensorKind::Stereo {
@@ -300,6 +323,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         sensor,
         seed: args.seed,
         frames: args.frames,
+        revisit_jitter,
     })
     .context("setting up the sequence")?;
     prepare_out(&args.out)?;
@@ -319,10 +343,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     let rate = scene.rate_hz();
     let name = format!(
-        "dwslam render {} --sensor {:?} --seed {}",
+        "dwslam render {} --sensor {:?} --seed {}{}",
         scene.name(),
         args.sensor,
-        args.seed
+        args.seed,
+        args.revisit_jitter
+            .map_or(String::new(), |j| format!(" --revisit-jitter {j}"))
     )
     .to_lowercase();
     let mut writer = match layout {
@@ -448,6 +474,14 @@ mod tests {
         assert!(parse_radtan("-0.28,0.07,0.0002,0.00002").is_ok());
         assert!(parse_radtan("1,2,3").is_err());
         assert!(parse_radtan("1,2,3,nan").is_err());
+        assert_eq!(revisit_jitter(SceneArg::Room, None).unwrap(), 1.0);
+        assert_eq!(revisit_jitter(SceneArg::Room, Some(0.25)).unwrap(), 0.25);
+        assert_eq!(revisit_jitter(SceneArg::Room, Some(0.0)).unwrap(), 0.0);
+        assert!(revisit_jitter(SceneArg::Room, Some(-0.1)).is_err());
+        assert!(revisit_jitter(SceneArg::Room, Some(f64::NAN)).is_err());
+        assert!(revisit_jitter(SceneArg::Room, Some(f64::INFINITY)).is_err());
+        assert!(revisit_jitter(SceneArg::Courtyard, Some(0.25)).is_err());
+        assert_eq!(revisit_jitter(SceneArg::Building, None).unwrap(), 1.0);
         assert_eq!(
             layout_for(SensorArg::Rgbd, None, false).unwrap(),
             LayoutArg::Tum

@@ -47,6 +47,7 @@ fn truth(scene: SceneKind, sensor: SensorModel, seed: u64, frames: usize) -> Seq
         sensor,
         seed,
         frames: Some(frames),
+        revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
     })
     .unwrap()
 }
@@ -195,6 +196,32 @@ fn bad_arguments_fail_before_any_work() {
                 below.to_str().unwrap(),
             ],
             "--out",
+        ),
+        (
+            vec![
+                "render",
+                "room",
+                "--sensor",
+                "rgbd",
+                "--revisit-jitter",
+                "-0.5",
+                "--out",
+                f,
+            ],
+            "--revisit-jitter",
+        ),
+        (
+            vec![
+                "render",
+                "courtyard",
+                "--sensor",
+                "stereo",
+                "--revisit-jitter",
+                "0.25",
+                "--out",
+                f,
+            ],
+            "room",
         ),
     ];
     for (args, expect) in cases {
@@ -472,4 +499,45 @@ fn kitti_mono_and_stereo_round_trip() {
         }
         std::fs::remove_dir_all(&out).unwrap();
     }
+}
+
+#[test]
+fn revisit_jitter_reaches_the_written_ground_truth() {
+    let out = scratch("revisit");
+    render(
+        &[
+            "room",
+            "--sensor",
+            "rgbd",
+            "--frames",
+            "3",
+            "--size",
+            "160x120",
+            "--revisit-jitter",
+            "0.25",
+        ],
+        &out,
+    );
+    let seq = ReadSequence::open(&out, &OpenOptions::default()).unwrap();
+    let sensor = SensorModel::new(SensorKind::Rgbd, 160, 120);
+    let config = |revisit_jitter| SequenceConfig {
+        scene: SceneKind::Room,
+        sensor,
+        seed: 1,
+        frames: Some(3),
+        revisit_jitter,
+    };
+    let (own, default) = (
+        Sequence::new(config(0.25)).unwrap(),
+        Sequence::new(config(1.0)).unwrap(),
+    );
+    for k in 0..3 {
+        let read = seq.read(k).unwrap().unwrap().world_from_camera.unwrap();
+        let e = pose_error(&read, &own.world_from_camera(k));
+        assert!(e <= 1e-9, "frame {k}: pose differs by {e}");
+        // Not the default browsing: the first view's variation is scaled down.
+        let d = pose_error(&read, &default.world_from_camera(k));
+        assert!(d > 1e-3, "frame {k}: the default pose ({d})");
+    }
+    std::fs::remove_dir_all(&out).unwrap();
 }

@@ -12,6 +12,7 @@ fn sequence(scene: SceneKind, kind: SensorKind, seed: u64) -> Sequence {
         sensor: SensorModel::new(kind, 640, 480),
         seed,
         frames: None,
+        revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
     })
     .unwrap()
 }

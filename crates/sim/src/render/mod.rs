@@ -33,7 +33,7 @@ pub use camera::RenderCamera;
 pub use raycast::{Pixel, ViewOptions};
 pub use scene::Scene;
 pub use sensor::{FrameImages, SensorKind, SensorModel};
-pub use sequence::{Frame, SceneKind, Sequence, SequenceConfig, capture};
+pub use sequence::{DEFAULT_REVISIT_JITTER, Frame, SceneKind, Sequence, SequenceConfig, capture};
 
 use cache::TextureCache;
 use camera::RayTable;

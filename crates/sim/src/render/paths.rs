@@ -9,6 +9,7 @@
 //! cubic Hermite segments with Catmull-Rom tangents, C¹) plus the small high-frequency motions
 //! of a hand or a walking head (sums of sinusoids of seeded phase: shake, step bob, sway).
 
+use super::RenderError;
 use super::procedural::{hash1, range, unit};
 use super::worlds::{BUILDING_LOOP, COURTYARD_HALF_SIZE};
 use crate::trajectory::pose_looking;
@@ -123,6 +124,14 @@ fn look(position: &Vector3<f64>, forward: &Vector3<f64>, roll: f64, shake: &Vect
 /// many times from slightly different positions; about 0.4 m/s and 40°/s, with a hand's shake
 /// (3 mm, 0.3°) and a slow roll (±4°). The gaze is interpolated in yaw and pitch (unwrapped), so
 /// it turns the short way between views.
+///
+/// Every visit of a view moves its position by up to [`ROOM_POSITION_JITTER`] (±0.15 m across,
+/// ±0.09 m in height) and its gaze target by up to [`ROOM_GAZE_JITTER`] (±0.25 m, ±0.15 m):
+/// about one radius of the live system's keyframe coverage (parallax 0.1 of a ~1.8 m depth,
+/// 10° of rotation), so each lap brings new views and a map keeps growing. With
+/// [`RoomBrowse::with_revisit_jitter`] that variation is scaled: at 0.25 every visit returns
+/// to nearly the same view, the browsing a map should saturate on (thesis §6.5.2: revisits
+/// reuse keyframes).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RoomBrowse {
     position: Spline,
@@ -151,9 +160,40 @@ pub const ROOM_VIEWS: [([f64; 3], [f64; 3]); 12] = [
     ([1.5, 3.1, 1.7], [3.0, 2.5, 0.8]),
 ];
 
+/// Half-width (m) of a visit's variation of the camera position across (x, y); 0.6 of it in
+/// height (a hand returns to a view within a step).
+pub const ROOM_POSITION_JITTER: f64 = 0.15;
+
+/// Half-width (m) of a visit's variation of the gaze target across (x, y); 0.6 of it in height
+/// (a glance settles on the same object, not the same point of it).
+pub const ROOM_GAZE_JITTER: f64 = 0.25;
+
 impl RoomBrowse {
     /// The browsing path of `seed`, planned for `duration` seconds (it holds still beyond).
     pub fn new(seed: u64, duration: f64) -> Self {
+        Self::plan(seed, duration, 1.0)
+    }
+
+    /// The browsing path of `seed` with each visit's variation of position and gaze target
+    /// scaled by `revisit_jitter` (finite, ≥ 0): 1 is [`RoomBrowse::new`]'s path bit for bit, 0
+    /// returns to exactly the same views ([`ROOM_VIEWS`]), 0.25 within a quarter of the default
+    /// variation. The programme (order of the views, look-backs, pauses), the hand's shake and
+    /// the roll are the same at any scale; only the time between views follows the distances.
+    pub fn with_revisit_jitter(
+        seed: u64,
+        duration: f64,
+        revisit_jitter: f64,
+    ) -> Result<Self, RenderError> {
+        if !(revisit_jitter.is_finite() && revisit_jitter >= 0.0) {
+            return Err(RenderError::InvalidParameter {
+                name: "revisit_jitter",
+                reason: format!("must be finite and at least 0, got {revisit_jitter}"),
+            });
+        }
+        Ok(Self::plan(seed, duration, revisit_jitter))
+    }
+
+    fn plan(seed: u64, duration: f64, revisit_jitter: f64) -> Self {
         let speed = 0.4;
         let turn_rate = 40f64.to_radians();
         let n = ROOM_VIEWS.len();
@@ -167,8 +207,10 @@ impl RoomBrowse {
         // A view: position and (yaw, pitch) of the gaze.
         let view = |i: usize, h: u64| {
             let (p, q) = ROOM_VIEWS[i];
-            let p = Vector3::new(p[0], p[1], p[2]) + jitter(h, 0.15);
-            let q = Vector3::new(q[0], q[1], q[2]) + jitter(hash1(h, 9), 0.25);
+            let p =
+                Vector3::new(p[0], p[1], p[2]) + jitter(h, ROOM_POSITION_JITTER * revisit_jitter);
+            let q = Vector3::new(q[0], q[1], q[2])
+                + jitter(hash1(h, 9), ROOM_GAZE_JITTER * revisit_jitter);
             let d = q - p;
             (p, d.y.atan2(d.x), d.z.atan2(d.x.hypot(d.y)))
         };
@@ -517,5 +559,160 @@ mod tests {
             }
         }
         assert!(visits.iter().all(|&c| c >= 2), "{visits:?}");
+    }
+
+    #[test]
+    fn revisit_jitter_one_is_the_default_path() {
+        // Poses of `RoomBrowse::new` as it was before the revisit jitter was scalable (commit
+        // 6441e3e): seed, planned duration, frame at 30 Hz, translation, quaternion (i, j, k, w).
+        let before: [(u64, f64, usize, [f64; 7]); 5] = [
+            (
+                1,
+                200.0,
+                0,
+                [
+                    1.698392327783656,
+                    2.5584916805715245,
+                    1.4135946651221998,
+                    -0.514209961582275,
+                    -0.6039425769817462,
+                    0.46853262269285634,
+                    0.3889969930356227,
+                ],
+            ),
+            (
+                1,
+                200.0,
+                1234,
+                [
+                    1.5321958127017352,
+                    3.767707769510851,
+                    1.505751438733751,
+                    -0.8098139973851268,
+                    -0.25859767179539506,
+                    0.16028822502015275,
+                    0.5016335502147078,
+                ],
+            ),
+            (
+                1,
+                200.0,
+                5999,
+                [
+                    3.7577599584337285,
+                    3.923567949217996,
+                    1.4348977674688799,
+                    -0.6840946054190467,
+                    0.26020695136924943,
+                    -0.23343197391489587,
+                    0.6401690611470343,
+                ],
+            ),
+            (
+                5,
+                100.0,
+                2999,
+                [
+                    2.7751619975933126,
+                    1.1310484293246168,
+                    1.6505078031345868,
+                    -0.7866563148350644,
+                    -0.3219873119919513,
+                    0.23005134563123023,
+                    0.4738906958567282,
+                ],
+            ),
+            (
+                3,
+                400.0,
+                11000,
+                [
+                    2.8639433049411047,
+                    3.576665847618105,
+                    1.5728108364959483,
+                    -0.7792703158194604,
+                    -0.18305374353918252,
+                    0.1541540326889556,
+                    0.5791939537535437,
+                ],
+            ),
+        ];
+        for (seed, duration, k, want) in before {
+            let pose = RoomBrowse::with_revisit_jitter(seed, duration, 1.0)
+                .unwrap()
+                .world_from_camera(k as f64 / 30.0);
+            let (t, q) = (pose.translation(), pose.rotation().unit_quaternion());
+            let got = [t.x, t.y, t.z, q.i, q.j, q.k, q.w];
+            // 1e-12: the same plan to rounding (a changed plan moves a view by millimetres).
+            for (g, w) in got.iter().zip(&want) {
+                assert!(
+                    (g - w).abs() < 1e-12,
+                    "seed {seed} frame {k}: {got:?} vs {want:?}"
+                );
+            }
+        }
+        // And `new` is the scale of 1 bit for bit, frame after frame.
+        let (a, b) = (
+            RoomBrowse::new(2, 150.0),
+            RoomBrowse::with_revisit_jitter(2, 150.0, 1.0).unwrap(),
+        );
+        assert_eq!(a, b);
+        for k in 0..4500 {
+            let t = k as f64 / 30.0;
+            assert_eq!(a.world_from_camera(t), b.world_from_camera(t), "frame {k}");
+        }
+        for bad in [-0.01, f64::NAN, f64::INFINITY] {
+            assert!(
+                RoomBrowse::with_revisit_jitter(2, 150.0, bad).is_err(),
+                "{bad}"
+            );
+        }
+    }
+
+    #[test]
+    fn smaller_revisit_jitter_keeps_the_views_within_the_scaled_bound() {
+        for scale in [0.0, 0.25, 0.5] {
+            let room = RoomBrowse::with_revisit_jitter(7, 300.0, scale).unwrap();
+            let (dp, dq) = (ROOM_POSITION_JITTER * scale, ROOM_GAZE_JITTER * scale);
+            let (mut max_dp, mut max_gaze) = (0f64, 0f64);
+            let knots = room.position.values.iter().zip(&room.gaze.values);
+            assert!(knots.len() > 60, "{} visits", knots.len());
+            for (p, g) in knots {
+                // The visited view: the nearest (views are ≥ 0.5 m apart, visits within 0.12 m).
+                let (v, q) = ROOM_VIEWS
+                    .iter()
+                    .map(|(v, q)| (Vector3::from(*v), Vector3::from(*q)))
+                    .min_by(|a, b| (a.0 - p).norm().total_cmp(&(b.0 - p).norm()))
+                    .unwrap();
+                let d = p - v;
+                assert!(
+                    d.x.abs() <= dp + 1e-12 && d.y.abs() <= dp + 1e-12,
+                    "scale {scale}: {d:?}"
+                );
+                assert!(d.z.abs() <= 0.6 * dp + 1e-12, "scale {scale}: {d:?}");
+                max_dp = max_dp.max(d.x.abs()).max(d.y.abs());
+                // The gaze ray from the visit's position passes the view's target within the
+                // target's variation (the ray goes through the varied target).
+                let forward = Vector3::new(g.y.cos() * g.x.cos(), g.y.cos() * g.x.sin(), g.y.sin());
+                let off = (q - p) - forward * (q - p).dot(&forward);
+                let bound = dq * (2.0f64 + 0.36).sqrt();
+                assert!(
+                    off.norm() <= bound + 1e-9,
+                    "scale {scale}: gaze {}",
+                    off.norm()
+                );
+                max_gaze = max_gaze.max(off.norm());
+            }
+            // The visits still vary (the bound is used, not collapsed) unless the scale is 0.
+            if scale > 0.0 {
+                assert!(max_dp > 0.8 * dp, "scale {scale}: {max_dp} of {dp}");
+                assert!(max_gaze > 0.3 * dq, "scale {scale}: {max_gaze} of {dq}");
+            } else {
+                assert!(max_dp == 0.0 && max_gaze < 1e-9, "{max_dp} {max_gaze}");
+            }
+            // The browsing stays a hand's: realistic speeds, inside the room.
+            let (v, w) = speeds(&room, 30.0, 3000);
+            assert!(v < 1.0 && w < 2.0, "scale {scale}: {v} m/s {w} rad/s");
+        }
     }
 }

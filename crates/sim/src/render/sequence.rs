@@ -86,7 +86,16 @@ pub struct SequenceConfig {
     pub seed: u64,
     /// Number of frames (`None`: the scene's default).
     pub frames: Option<usize>,
+    /// Scale of the room browse's variation from visit to visit of a view (finite, ≥ 0): 1 is
+    /// the default browsing, whose every revisit is about one keyframe-coverage radius from
+    /// the last (a map of it keeps growing); smaller returns to nearly the same views, so the
+    /// room can be fully mapped (see [`RoomBrowse::with_revisit_jitter`]). Only the room has
+    /// it: the other scenes require 1.
+    pub revisit_jitter: f64,
 }
+
+/// [`SequenceConfig::revisit_jitter`]'s default: the room browse as it was designed.
+pub const DEFAULT_REVISIT_JITTER: f64 = 1.0;
 
 /// Timestamp of the first frame (µs since the Unix epoch: 2023-11-14), so that the files look
 /// like a recording's.
@@ -282,6 +291,16 @@ impl Sequence {
                 reason: "must be at least 1".into(),
             });
         }
+        if config.scene != SceneKind::Room && config.revisit_jitter != DEFAULT_REVISIT_JITTER {
+            return Err(RenderError::InvalidParameter {
+                name: "revisit_jitter",
+                reason: format!(
+                    "only the room's browsing has revisit variation to scale; the {} needs {}",
+                    config.scene.name(),
+                    DEFAULT_REVISIT_JITTER
+                ),
+            });
+        }
         let rate = config.scene.rate_hz();
         let duration = frames as f64 / rate;
         let (scene, path): (_, Box<dyn CameraPath>) = match config.scene {
@@ -289,7 +308,11 @@ impl Sequence {
                 worlds::room(config.seed),
                 // Planned for the default length, so that frame k is the same whatever the
                 // number of frames asked for (longer runs extend the plan).
-                Box::new(RoomBrowse::new(config.seed, duration.max(100.0))),
+                Box::new(RoomBrowse::with_revisit_jitter(
+                    config.seed,
+                    duration.max(100.0),
+                    config.revisit_jitter,
+                )?),
             ),
             SceneKind::Building => (
                 worlds::building(config.seed),
