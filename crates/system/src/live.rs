@@ -169,6 +169,31 @@ impl LiveRun<3> for LiveSystem {
     }
 }
 
+/// The record and the report of a frame that could not be read (both systems'
+/// [`LiveRun::skip_frame`]): no pose, lost for `reason`.
+pub(crate) fn skipped_frame(
+    index: usize,
+    timestamp: f64,
+    reason: String,
+) -> (FrameRecord, FrameReport) {
+    (
+        FrameRecord {
+            index,
+            timestamp,
+            world_from_camera: None,
+            state: TrackingState::Lost(reason.clone()),
+        },
+        FrameReport {
+            index,
+            state: TrackingState::Lost(reason),
+            keyframe: None,
+            stats: None,
+            time: Duration::ZERO,
+            time_tracking: Duration::ZERO,
+        },
+    )
+}
+
 /// The double window optimisation thread.
 struct Worker {
     wake: SyncSender<()>,
@@ -386,20 +411,9 @@ impl LiveSystem {
     /// Records a frame that could not be read (the reader's `--on-bad-frame skip`): it has no
     /// pose; the state says why.
     pub fn skip_frame(&mut self, index: usize, timestamp: f64, reason: String) {
-        self.record.frames.push(FrameRecord {
-            index,
-            timestamp,
-            world_from_camera: None,
-            state: TrackingState::Lost(reason.clone()),
-        });
-        self.reports.push(FrameReport {
-            index,
-            state: TrackingState::Lost(reason),
-            keyframe: None,
-            stats: None,
-            time: Duration::ZERO,
-            time_tracking: Duration::ZERO,
-        });
+        let (record, report) = skipped_frame(index, timestamp, reason);
+        self.record.frames.push(record);
+        self.reports.push(report);
     }
 
     fn initialise(&mut self, frame: &Arc<FrameData>) -> Result<FrameReport, SystemError> {

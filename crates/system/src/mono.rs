@@ -23,7 +23,7 @@
 use crate::config::{MonoConfig, SystemConfig};
 use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
-use crate::live::{FrameReport, LiveRun, LoopEvent, RunResult, SystemError};
+use crate::live::{FrameReport, LiveRun, LoopEvent, RunResult, SystemError, skipped_frame};
 use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
 use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
 use crate::tracker::TrackerStats;
@@ -268,11 +268,20 @@ pub struct MonoSystem {
 /// drift between the two places, and the loops correct the map at the end of the run.
 struct MonoLoops {
     place: PlaceRecognition,
-    /// `(old, current, current_from_old)` of every loop accepted.
-    edges: Vec<(KeyframeId, KeyframeId, Sim3)>,
+    /// Every loop accepted.
+    edges: Vec<LoopDetection>,
     /// The latest run of mutually consistent detections, and whether it was accepted.
-    chain: Vec<(KeyframeId, KeyframeId, Sim3)>,
+    chain: Vec<LoopDetection>,
     accepted: bool,
+}
+
+/// A loop found by place recognition: keyframe `current` sees the place of `old`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct LoopDetection {
+    current: KeyframeId,
+    old: KeyframeId,
+    /// `x_current = S·x_old` for camera-frame points.
+    current_from_old: Sim3,
 }
 
 /// Detections in a row that must agree before a loop is accepted (3: a repetitive place —
@@ -320,23 +329,19 @@ fn loop_within_drift(
     (implied - centre(&t_k)).norm() <= MAX_DRIFT_FRACTION * path
 }
 
-/// Whether detection `b` (`k_from_old`) agrees with the earlier `a` through the map's
-/// relative poses (the odometry is locally accurate on both sides of a loop).
-fn loops_agree(
-    graph: &SlamGraph<2>,
-    a: &(KeyframeId, KeyframeId, Sim3),
-    b: &(KeyframeId, KeyframeId, Sim3),
-) -> bool {
+/// Whether detection `b` agrees with the earlier `a` through the map's relative poses (the
+/// odometry is locally accurate on both sides of a loop).
+fn loops_agree(graph: &SlamGraph<2>, a: &LoopDetection, b: &LoopDetection) -> bool {
     let rel = |x: KeyframeId, y: KeyframeId| -> Option<Sim3> {
         Some(graph.pose(x).ok()?.compose(&graph.pose(y).ok()?.inverse()))
     };
-    let (Some(cur), Some(old)) = (rel(b.0, a.0), rel(a.1, b.1)) else {
+    let (Some(cur), Some(old)) = (rel(b.current, a.current), rel(a.old, b.old)) else {
         return false;
     };
     // x_kb = T_kb,ka · S_a · T_olda,oldb · x_oldb.
-    let predicted = cur.compose(&a.2).compose(&old);
-    let delta = predicted.inverse().compose(&b.2);
-    let mut depths: Vec<f64> = slam::loop_closure::constraint::depth_samples(graph, b.1)
+    let predicted = cur.compose(&a.current_from_old).compose(&old);
+    let delta = predicted.inverse().compose(&b.current_from_old);
+    let mut depths: Vec<f64> = slam::loop_closure::constraint::depth_samples(graph, b.old)
         .into_iter()
         .map(|(_, d)| d)
         .collect();
@@ -440,22 +445,22 @@ impl MonoSystem {
                 self.rejected_loops += 1;
             }
             Ok(Some(c)) => {
-                let detection = (c.old, k, c.query_from_old);
+                let detection = LoopDetection {
+                    current: k,
+                    old: c.old,
+                    current_from_old: c.query_from_old,
+                };
                 // Consistent with the last detection, if that was a few keyframes ago.
                 let follows = loops.chain.last().is_some_and(|last| {
-                    k.index() - last.1.index() <= LOOP_CONSISTENCY
-                        && loops_agree(
-                            &map.graph,
-                            &(last.1, last.0, last.2),
-                            &(k, c.old, c.query_from_old),
-                        )
+                    k.index() - last.current.index() <= LOOP_CONSISTENCY
+                        && loops_agree(&map.graph, last, &detection)
                 });
                 if !follows {
                     loops.chain.clear();
                     loops.accepted = false;
                 }
                 loops.chain.push(detection);
-                let newly: Vec<(KeyframeId, KeyframeId, Sim3)> = if loops.accepted {
+                let newly: Vec<LoopDetection> = if loops.accepted {
                     vec![detection]
                 } else if loops.chain.len() >= LOOP_CONSISTENCY {
                     loops.accepted = true;
@@ -463,14 +468,14 @@ impl MonoSystem {
                 } else {
                     Vec::new()
                 };
-                for (old, current, current_from_old) in newly {
-                    loops.edges.push((old, current, current_from_old));
+                for d in newly {
+                    loops.edges.push(d);
                     self.events.push(LoopEvent {
-                        keyframe: current,
-                        old,
-                        frames: (map.keyframe(current).frame, map.keyframe(old).frame),
+                        keyframe: d.current,
+                        old: d.old,
+                        frames: (map.keyframe(d.current).frame, map.keyframe(d.old).frame),
                         kind: "appearance",
-                        scale: Some(current_from_old.scale()),
+                        scale: Some(d.current_from_old.scale()),
                     });
                 }
             }
@@ -567,6 +572,8 @@ impl MonoSystem {
             let centre = |t: &Se3| t.inverse().act(&Vector3::zeros());
             let axis = |t: &Se3| t.rotation().inverse().act(&Vector3::z());
             let (c, a) = (centre(&pose), axis(&pose));
+            // A scan of every keyframe (a few hundred here: microseconds); a map of thousands
+            // would want a spatial index.
             let mut near: Vec<(f64, KeyframeId)> = map
                 .keyframe_ids()
                 .filter_map(|k| {
@@ -585,7 +592,9 @@ impl MonoSystem {
                 .filter(|p| !active.contains(p))
                 .filter_map(|p| SearchPoint::from_graph(&map.graph, p))
                 .filter(|sp| view_angle(&pose, sp) <= max_angle)
-                .filter_map(|sp| predict(&self.camera, &pose, &sp, w, h, 8.0).map(|(u, _)| (sp, u)))
+                .filter_map(|sp| {
+                    predict(&self.camera, &pose, &sp, w, h, PATCH_MARGIN_PX).map(|(u, _)| (sp, u))
+                })
                 .take(config.mono.max_refind)
                 .collect()
         };
@@ -596,7 +605,7 @@ impl MonoSystem {
             fast9(image, config.tracker.fast_threshold, true),
             w,
             h,
-            16.0,
+            CORNER_CELL_PX,
         );
         let radius = config.tracker.wide_search_radius;
         let mut found = 0;
@@ -642,6 +651,14 @@ impl MonoSystem {
     }
 }
 
+/// A point is searched only if its prediction lies this far inside the image (8 px: an 8×8
+/// patch and its sub-pixel refinement stay inside).
+const PATCH_MARGIN_PX: f64 = 8.0;
+
+/// Cell of the corner index the search queries (16 px: about the wide search radius, so a
+/// query reads a handful of cells).
+const CORNER_CELL_PX: f32 = 16.0;
+
 /// A match this close to a track's position is the corner the track follows (2 px: LK and the
 /// sub-pixel refinement each localise a corner to a fraction of a pixel).
 const SAME_CORNER_PX: f64 = 2.0;
@@ -665,7 +682,7 @@ impl LiveRun<2> for MonoSystem {
         self.record
             .timings
             .record("frame: pyramid, LK tracks", t.elapsed());
-        let measurements = match measurements {
+        let mut measurements = match measurements {
             Ok(m) => {
                 self.refused = 0;
                 m
@@ -695,7 +712,6 @@ impl LiveRun<2> for MonoSystem {
                 return Ok(report);
             }
         };
-        let mut measurements = measurements;
         let t = Instant::now();
         let refound = self.refind(frame.index, image, &mut measurements);
         if self.explorer.is_some() && self.config.mono.refind {
@@ -705,15 +721,18 @@ impl LiveRun<2> for MonoSystem {
         }
         let n_tracks = measurements.len();
         let t = Instant::now();
-        let camera = self.camera;
-        let config = exploration_config(&self.config, camera.fx, width, height);
         if self.explorer.is_none() {
             self.bootstrap_first = Some(keyframe_images(&frame));
+            let config = exploration_config(&self.config, self.camera.fx, width, height);
+            self.explorer = Some(MonoExplorer::new(self.camera, config));
         }
-        let explorer = self
-            .explorer
-            .get_or_insert_with(|| MonoExplorer::new(camera, config));
+        let explorer = self.explorer.as_mut().expect("made above");
         let outcome = explorer.process(frame.index, &measurements);
+        let explored = t.elapsed();
+        self.record.timings.record("mono: exploration", explored);
+        // Tracking ends with the exploration (its window BA included); place recognition of
+        // a new keyframe is not tracking.
+        let time_tracking = start.elapsed();
         if let Ok(o) = &outcome
             && let Some(k) = o.keyframe
         {
@@ -729,8 +748,6 @@ impl LiveRun<2> for MonoSystem {
                     .record("keyframe: place recognition", t.elapsed());
             }
         }
-        let time_tracking = start.elapsed();
-        self.record.timings.record("mono: exploration", t.elapsed());
         let (state, pose, keyframe, stats) = match outcome {
             Ok(o) => {
                 let state = match o.camera_from_world {
@@ -783,9 +800,9 @@ impl LiveRun<2> for MonoSystem {
             self.record.timings.record(
                 match r {
                     KeyframeReason::First => "keyframe: bootstrap",
-                    _ => "keyframe: window BA",
+                    _ => "keyframe: exploration with window BA",
                 },
-                time_tracking,
+                explored,
             );
         }
         let report = FrameReport {
@@ -802,20 +819,9 @@ impl LiveRun<2> for MonoSystem {
     }
 
     fn skip_frame(&mut self, index: usize, timestamp: f64, reason: String) {
-        self.record.frames.push(FrameRecord {
-            index,
-            timestamp,
-            world_from_camera: None,
-            state: TrackingState::Lost(reason.clone()),
-        });
-        self.reports.push(FrameReport {
-            index,
-            state: TrackingState::Lost(reason),
-            keyframe: None,
-            stats: None,
-            time: Duration::ZERO,
-            time_tracking: Duration::ZERO,
-        });
+        let (record, report) = skipped_frame(index, timestamp, reason);
+        self.record.frames.push(record);
+        self.reports.push(report);
     }
 
     fn record(&self) -> &RunRecord {
@@ -849,10 +855,10 @@ impl LiveRun<2> for MonoSystem {
                 .map(|l| {
                     l.edges
                         .iter()
-                        .map(|&(old, current, current_from_old)| LoopEdge {
-                            old: old.index(),
-                            current: current.index(),
-                            old_from_current: current_from_old.inverse(),
+                        .map(|d| LoopEdge {
+                            old: d.old.index(),
+                            current: d.current.index(),
+                            old_from_current: d.current_from_old.inverse(),
                         })
                         .collect()
                 })
@@ -862,12 +868,14 @@ impl LiveRun<2> for MonoSystem {
             } else {
                 CorrectionGroup::Sim3
             };
-            let groups: &[CorrectionGroup] = if edges.is_empty() {
-                &[]
-            } else if primary == CorrectionGroup::Sim3 {
-                &[CorrectionGroup::Sim3, CorrectionGroup::Se3]
+            let other = match primary {
+                CorrectionGroup::Sim3 => CorrectionGroup::Se3,
+                CorrectionGroup::Se3 => CorrectionGroup::Sim3,
+            };
+            let groups = if edges.is_empty() {
+                vec![]
             } else {
-                &[CorrectionGroup::Se3, CorrectionGroup::Sim3]
+                vec![primary, other]
             };
             let keyframe_of: std::collections::HashMap<usize, KeyframeId> = map
                 .keyframe_ids()
@@ -1036,14 +1044,19 @@ mod tests {
             Vector3::new(-0.5, 0.0, 0.0),
         ));
         let s = |k: usize, old: usize| shift.compose(&pose(k)).compose(&pose(old).inverse());
-        let a = (id(15), id(2), s(15, 2));
-        assert!(loops_agree(&g, &a, &(id(16), id(3), s(16, 3))));
+        let detection = |current: usize, old: usize, current_from_old: Sim3| LoopDetection {
+            current: id(current),
+            old: id(old),
+            current_from_old,
+        };
+        let a = detection(15, 2, s(15, 2));
+        assert!(loops_agree(&g, &a, &detection(16, 3, s(16, 3))));
         // A second detection that jumps to an unrelated place (keyframe 9) does not agree.
-        assert!(!loops_agree(&g, &a, &(id(16), id(9), s(16, 3))));
+        assert!(!loops_agree(&g, &a, &detection(16, 9, s(16, 3))));
         // Nor one whose scale differs by 30 %.
         let scaled = Sim3::new(lie::So3::identity(), Vector3::zeros(), 1.3)
             .unwrap()
             .compose(&s(16, 3));
-        assert!(!loops_agree(&g, &a, &(id(16), id(3), scaled)));
+        assert!(!loops_agree(&g, &a, &detection(16, 3, scaled)));
     }
 }

@@ -15,6 +15,15 @@ use system::config::SystemConfig;
 use system::live::{LiveRun, RunResult};
 use system::mono::MonoSystem;
 
+/// The grey image of a 7-Scenes (RGB-D or colour-only) frame, to alter.
+fn grey_mut(frame: &mut data::sequence::Frame) -> &mut vision::image::GrayImage {
+    match &mut frame.images {
+        data::sequence::FrameImages::Rgbd { image, .. }
+        | data::sequence::FrameImages::Mono { image, .. } => image,
+        data::sequence::FrameImages::Stereo { left, .. } => left,
+    }
+}
+
 struct Scored {
     result: RunResult<2>,
     /// Frames with a live pose.
@@ -165,14 +174,11 @@ fn gaps_black_textureless_and_unreadable_frames_are_reported_and_the_run_goes_on
             continue;
         }
         let mut frame = sequence.read(k).unwrap().unwrap();
-        if let data::sequence::FrameImages::Rgbd { image, .. }
-        | data::sequence::FrameImages::Mono { image, .. } = &mut frame.images
-        {
-            if k == black {
-                image.data_mut().fill(0);
-            } else if textureless.contains(&k) {
-                image.data_mut().fill(128);
-            }
+        let image = grey_mut(&mut frame);
+        if k == black {
+            image.data_mut().fill(0);
+        } else if textureless.contains(&k) {
+            image.data_mut().fill(128);
         }
         system.process(frame).unwrap();
     }
@@ -258,11 +264,7 @@ fn a_purely_rotating_camera_is_never_initialised_and_says_why() {
         let mut frame = first.clone();
         frame.index = k;
         frame.timestamp = k as f64 / 30.0;
-        if let data::sequence::FrameImages::Rgbd { image: img, .. }
-        | data::sequence::FrameImages::Mono { image: img, .. } = &mut frame.images
-        {
-            *img = image;
-        }
+        *grey_mut(&mut frame) = image;
         let report = system.process(frame).unwrap();
         assert!(
             matches!(&report.state, data::output::TrackingState::Lost(why) if why.contains("initialising") || why.contains("parallax")),

@@ -393,8 +393,7 @@ impl MonoExplorer {
         &self.active
     }
 
-    /// The track that measures `point`'s feature as a filter (an id of [`FeatureFilters`]), if
-    /// any; a track with a filter or a map point is a feature.
+    /// Whether `track` is a feature: it measures a map point or runs an inverse-depth filter.
     pub fn is_feature(&self, track: TrackId) -> bool {
         self.active.contains_key(&track) || self.filter_of_track.contains_key(&track)
     }
