@@ -130,9 +130,6 @@ pub struct MonoConfig {
     /// comparison; the other correction is written too, `trajectory_final_se3.tum` /
     /// `_sim3`).
     pub loop_correction: String,
-    /// Keyframes that share a map point with a new one, or are among the last this many, are
-    /// topologically close and never joined to it by a loop (10: the exploration's window).
-    pub loop_exclusion: usize,
 }
 
 impl Default for MonoConfig {
@@ -156,7 +153,6 @@ impl Default for MonoConfig {
             max_refind: 100,
             double_window: false,
             loop_correction: "sim3".into(),
-            loop_exclusion: 10,
         }
     }
 }
@@ -175,6 +171,13 @@ pub struct LoopConfig {
     /// never joined by an appearance loop (2: the keyframes sharing Θ points with the new one
     /// and theirs — local registration and metric loop closure already join those).
     pub exclusion_hops: usize,
+    /// The last this many keyframes before a new one are topologically close to it as well,
+    /// whatever the graph says (10: the tracker's chain joins them; in a fast turn consecutive
+    /// keyframes share too few points for an edge, and an appearance "loop" between them —
+    /// seen on the rendered revisit room, keyframes 2–6 apart — is no revisit and can break
+    /// the map; the appearance loops of 7-Scenes join keyframes ≥ 11 apart; the monocular
+    /// exploration's window is 10 keyframes).
+    pub exclusion_recent: usize,
     /// Keyframes waiting for the loop closer at most (16: detection takes ~20 ms, keyframes
     /// come a few per second, so the queue only fills if the loop thread stalls for seconds;
     /// a keyframe that finds it full is not entered into the database, and the run reports
@@ -190,6 +193,7 @@ impl Default for LoopConfig {
             enabled: true,
             vocabulary: None,
             exclusion_hops: 2,
+            exclusion_recent: 10,
             queue: 16,
             place_recognition: Default::default(),
         }

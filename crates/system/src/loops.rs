@@ -7,7 +7,8 @@
 //! 2. asks the database for a revisit among the keyframes that are **not** topologically close
 //!    (thesis: never between topologically close keyframes, where local registration and
 //!    metric loop closure join the graph): those within [`LoopConfig::exclusion_hops`] edges of
-//!    the keyframe graph; the database verifies the best hypotheses by a 3-point RANSAC in
+//!    the keyframe graph and the last [`LoopConfig::exclusion_recent`] keyframes
+//!    ([`recent_keyframes`]); the database verifies the best hypotheses by a 3-point RANSAC in
 //!    SE(3) (eq. 6.9) and guided ORB matching;
 //! 3. **guided matching into the map**: the map points of the old place (the old keyframe's and
 //!    its covisible neighbours') are projected into the new keyframe at the pose the verified
@@ -77,6 +78,7 @@ pub struct LoopCloser {
     mapper: Mapper<StereoCamera, 3>,
     sensor: SensorFrontEnd,
     exclusion_hops: usize,
+    exclusion_recent: usize,
     radius: f64,
     min_ncc: f32,
     max_view_angle: f64,
@@ -102,6 +104,7 @@ impl LoopCloser {
             mapper: Mapper::new(*sensor.camera(), mapping),
             sensor,
             exclusion_hops: config.loops.exclusion_hops,
+            exclusion_recent: config.loops.exclusion_recent,
             radius: config.mapping.loop_search_radius,
             min_ncc: config.tracker.min_ncc,
             max_view_angle: config.tracker.max_view_angle_deg.to_radians(),
@@ -141,7 +144,9 @@ impl LoopCloser {
             if g.keyframe(job.keyframe).is_none() {
                 return Ok(None);
             }
-            topological_neighbourhood(&g, job.keyframe, self.exclusion_hops)
+            let mut close = topological_neighbourhood(&g, job.keyframe, self.exclusion_hops);
+            close.extend(recent_keyframes(job.keyframe, self.exclusion_recent));
+            close
         };
         let candidate = self.recogniser.detect(job.keyframe, &excluded)?;
         self.timings.record("loop: detect and verify", t.elapsed());
@@ -220,6 +225,12 @@ impl LoopCloser {
     }
 }
 
+/// `k` and the `n` keyframes made just before it (keyframe ids count up in the order the
+/// keyframes are made): topologically close through the tracker's chain.
+pub fn recent_keyframes(k: KeyframeId, n: usize) -> impl Iterator<Item = KeyframeId> {
+    (k.index().saturating_sub(n)..=k.index()).map(KeyframeId::from_index)
+}
+
 /// The keyframes within `hops` edges of `root` in the keyframe graph (root included): the
 /// topological neighbourhood appearance-based loops never join.
 pub fn topological_neighbourhood<const N: usize>(
@@ -271,5 +282,12 @@ mod tests {
         assert_eq!(n(2, 2), vec![0, 1, 2, 3, 4]);
         assert_eq!(n(0, 1), vec![0, 1, 4]);
         assert_eq!(n(5, 3), vec![5]);
+        let recent = |k: usize, n| {
+            recent_keyframes(KeyframeId::from_index(k), n)
+                .map(|x| x.index())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(recent(12, 3), vec![9, 10, 11, 12]);
+        assert_eq!(recent(1, 3), vec![0, 1]);
     }
 }

@@ -430,9 +430,7 @@ impl MonoSystem {
         }
         // Topologically close: the last keyframes and every keyframe sharing a point with k.
         let mut excluded: BTreeSet<KeyframeId> =
-            (k.index().saturating_sub(self.config.mono.loop_exclusion)..=k.index())
-                .map(KeyframeId::from_index)
-                .collect();
+            crate::loops::recent_keyframes(k, self.config.loops.exclusion_recent).collect();
         if let Some(kf) = map.graph.keyframe(k) {
             for p in kf.observations().keys() {
                 if let Some(pt) = map.graph.point(*p) {
