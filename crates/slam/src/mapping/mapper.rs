@@ -348,15 +348,59 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
                 matches.push((p_old, z));
             }
         }
+        let align = |target: &[Vector3<f64>], source: &[Vector3<f64>]| {
+            if C::MEASURES_DEPTH {
+                align_se3(target, source).ok().map(|t| Sim3::from_se3(&t))
+            } else {
+                align_sim3(target, source).ok()
+            }
+        };
         if matches.len() < self.config.min_appearance_matches {
             return Ok(None);
         }
-        let relative = if C::MEASURES_DEPTH {
-            align_se3(&target, &source).ok().map(|t| Sim3::from_se3(&t))
-        } else {
-            align_sim3(&target, &source).ok()
+        let Some(first) = align(&target, &source) else {
+            return Ok(None);
         };
-        let Some(query_from_matched) = relative else {
+        // The matches must be explained by one pose of the new keyframe in the old place, as
+        // those of a metric loop (thesis §6.4.1): a robust motion-only fit from the pose the
+        // alignment implies, and the matches above the χ² gate dropped. The guided matching
+        // finds them by patch correlation alone; one wrong match in the alignment (no robust
+        // cost there) bends the loop's edge, and it would also become an observation.
+        let t_old = graph.pose(place.old)?;
+        let initial = Sim3::from_se3(&rigid_from_similarity(&first)).compose(&t_old);
+        let fit = tracking::PoseProblem::new(
+            t_old,
+            source.clone(),
+            matches.iter().map(|m| m.1).collect(),
+            &initial,
+        )
+        .solve(&self.camera, &MotionOnlyOptions::robust(self.config.sigma));
+        let Ok(fit) = fit else {
+            return Ok(None);
+        };
+        let keep: Vec<bool> = fit
+            .chi2
+            .iter()
+            .map(|&c| c <= self.config.loop_max_chi2)
+            .collect();
+        let pick = |v: Vec<Vector3<f64>>| -> Vec<Vector3<f64>> {
+            v.into_iter()
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(x, _)| x)
+                .collect()
+        };
+        let (target, source) = (pick(target), pick(source));
+        let matches: Vec<(PointId, SVector<f64, N>)> = matches
+            .into_iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(m, _)| m)
+            .collect();
+        if matches.len() < self.config.min_appearance_matches {
+            return Ok(None);
+        }
+        let Some(query_from_matched) = align(&target, &source) else {
             return Ok(None);
         };
         loop_closure::close_appearance_loop(
@@ -518,6 +562,61 @@ mod tests {
             "{relative:?}"
         );
         g.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn wrong_matches_of_an_appearance_loop_are_dropped_before_the_alignment() {
+        let mapper = mapper();
+        let camera = *mapper.camera();
+        let mut g = SlamGraph::<3>::new();
+        let old = g.add_keyframe(Sim3::identity());
+        // The new keyframe truly sits at `truth` from the old one; the graph has it drifted.
+        let truth = Se3::new(lie::So3::rot_y(0.08), Vector3::new(0.3, -0.05, 0.1));
+        let drifted = Sim3::from_se3(&Se3::from_translation(Vector3::new(0.05, 0.02, 0.0)))
+            .compose(&Sim3::from_se3(&truth));
+        let new = g.add_keyframe(drifted);
+        let mut correspondences = Vec::new();
+        let mut wrong = Vec::new();
+        for i in 0..40 {
+            let x = Vector3::new(
+                -1.0 + 0.05 * i as f64,
+                -0.6 + 0.03 * ((i * 7) % 40) as f64,
+                2.0 + 0.05 * ((i * 13) % 40) as f64,
+            );
+            let p = g
+                .add_point(
+                    old,
+                    point_to_inverse_depth(&x).unwrap(),
+                    camera.project(&x).unwrap(),
+                )
+                .unwrap();
+            let mut z = camera.project(&truth.act(&x)).unwrap();
+            if i % 10 == 3 {
+                // A wrong patch match: 25 px off, with the disparity of a surface behind it.
+                z += Vector3::new(25.0, 0.0, 20.0);
+                wrong.push(p);
+            }
+            correspondences.push((p, z, None));
+        }
+        let place = AppearanceMatch {
+            old,
+            correspondences,
+        };
+        assert_eq!(
+            mapper.close_appearance_loop(&mut g, new, &place).unwrap(),
+            Some(old)
+        );
+        // The edge carries the true relative pose (the four wrong matches would bend it by
+        // centimetres), and the wrong matches are no observations of the new keyframe.
+        let relative = g.relative_pose(old, new).unwrap();
+        let error = relative
+            .compose(&Sim3::from_se3(&truth).inverse())
+            .log()
+            .norm();
+        assert!(error < 1e-6, "relative pose error {error}");
+        let seen = g.keyframe(new).unwrap().observations();
+        assert_eq!(seen.len(), 36);
+        assert!(wrong.iter().all(|p| !seen.contains_key(p)));
     }
 
     #[test]
