@@ -125,11 +125,20 @@ pub struct MonoConfig {
     /// 31.8 against 7.8 cm, 7-Scenes 13.1 against 10.5 cm — its gauge is left to the damping,
     /// the window's is its two oldest keyframes).
     pub double_window: bool,
-    /// How the loops found by appearance correct the map at the end of the run: `sim3` (thesis
+    /// How the loops found by appearance correct the map: `sim3` (thesis
     /// ch. 5: rotation, translation and scale drift) or `se3` (rigid, for the thesis's
-    /// comparison; the other correction is written too, `trajectory_final_se3.tum` /
-    /// `_sim3`).
+    /// comparison; without `correct_live` the other correction is written too,
+    /// `trajectory_final_se3.tum` / `_sim3`).
     pub loop_correction: String,
+    /// Correct the map when a loop is accepted, and go on exploring in the corrected map
+    /// (thesis ch. 5: the map points of the old place are found again in the corrected map),
+    /// instead of once at the end of the run. With it the run writes only
+    /// `mono.loop_correction`'s correction. Off by default, measured (deterministic runs,
+    /// Sim(3)-aligned ATE live / final): building 3.47 / 0.72 m on against 3.61 / 0.64 m off,
+    /// courtyard laps 7.57 / 6.63 against 7.52 / 2.04 m, room 0.40 / 0.42 against 0.45 /
+    /// 0.40 m — corrected live, far fewer later loops are accepted (courtyard 9 against 21,
+    /// room 7 against 23), and the correction at the end with all of them is the better one.
+    pub correct_live: bool,
 }
 
 impl Default for MonoConfig {
@@ -153,6 +162,7 @@ impl Default for MonoConfig {
             max_refind: 100,
             double_window: false,
             loop_correction: "sim3".into(),
+            correct_live: false,
         }
     }
 }

@@ -265,7 +265,8 @@ pub struct MonoSystem {
 /// Large loops by appearance in a monocular map (thesis ch. 5): each keyframe's ORB words and
 /// map-point depths go into the database; a loop is verified by kNN depth regression and a
 /// 3-point Sim(3) RANSAC (`place_recognition`, [`Alignment::Sim3`]), its scale is the scale
-/// drift between the two places, and the loops correct the map at the end of the run.
+/// drift between the two places, and the loops correct the map when accepted
+/// (`mono.correct_live`) or at the end of the run.
 struct MonoLoops {
     place: PlaceRecognition,
     /// Every loop accepted.
@@ -327,6 +328,44 @@ fn loop_within_drift(
         }
     }
     (implied - centre(&t_k)).norm() <= MAX_DRIFT_FRACTION * path
+}
+
+/// The accepted loops as edges of the keyframe chain (thesis §5.3.2).
+fn loop_edges(detections: &[LoopDetection]) -> Vec<LoopEdge> {
+    detections
+        .iter()
+        .map(|d| LoopEdge {
+            old: d.old.index(),
+            current: d.current.index(),
+            old_from_current: d.current_from_old.inverse(),
+        })
+        .collect()
+}
+
+/// `mono.loop_correction`'s group and the other one.
+fn correction_groups(name: &str) -> (CorrectionGroup, CorrectionGroup) {
+    if name == "se3" {
+        (CorrectionGroup::Se3, CorrectionGroup::Sim3)
+    } else {
+        (CorrectionGroup::Sim3, CorrectionGroup::Se3)
+    }
+}
+
+/// Corrects `graph` through the pose graph of its keyframe chain and the `loops` in `group`
+/// (`slam::loop_closure::correction::correct_graph`, 50 Levenberg-Marquardt iterations, one
+/// thread, exact Jacobians).
+fn correct_loops(
+    graph: &mut SlamGraph<2>,
+    loops: &[LoopEdge],
+    group: CorrectionGroup,
+) -> Result<(), slam::loop_closure::correction::CorrectionError> {
+    let options = lsq::SolverOptions {
+        max_iterations: 50,
+        threads: Some(1),
+        ..lsq::SolverOptions::default()
+    };
+    let jacobian = PoseGraphJacobian::Analytic(lie::LogJacobian::Exact);
+    correct_graph(graph, loops, group, jacobian, &options).map(|_| ())
 }
 
 /// Whether detection `b` agrees with the earlier `a` through the map's relative poses (the
@@ -413,7 +452,7 @@ impl MonoSystem {
     }
 
     /// A new keyframe into place recognition, and its loop with an old place if one is
-    /// verified (recorded; the correction comes at the end of the run).
+    /// verified (recorded, and with `mono.correct_live` the map corrected at once).
     fn close_loop(&mut self, k: KeyframeId, image: &GrayImage, frame: usize) {
         let (Some(loops), Some(explorer)) = (self.loops.as_mut(), self.explorer.as_ref()) else {
             return;
@@ -438,6 +477,7 @@ impl MonoSystem {
                 }
             }
         }
+        let mut accepted_now = false;
         match loops.place.detect(k, &excluded) {
             Ok(Some(c)) if !loop_within_drift(&map.graph, c.old, k, &c.query_from_old) => {
                 self.rejected_loops += 1;
@@ -466,6 +506,7 @@ impl MonoSystem {
                 } else {
                     Vec::new()
                 };
+                accepted_now = !newly.is_empty();
                 for d in newly {
                     loops.edges.push(d);
                     self.events.push(LoopEvent {
@@ -482,6 +523,26 @@ impl MonoSystem {
                 .warnings
                 .push(format!("loop detection at frame {frame}: {e}")),
         }
+        if accepted_now && self.config.mono.correct_live {
+            self.correct_live(frame);
+        }
+    }
+
+    /// The loops accepted so far correct the current map now (`mono.correct_live`), in
+    /// `mono.loop_correction`'s group, and the exploration goes on in the corrected map.
+    fn correct_live(&mut self, frame: usize) {
+        let (Some(loops), Some(explorer)) = (self.loops.as_ref(), self.explorer.as_mut()) else {
+            return;
+        };
+        let t = Instant::now();
+        let edges = loop_edges(&loops.edges);
+        let group = correction_groups(&self.config.mono.loop_correction).0;
+        if let Err(e) = explorer.correct_map(|g| correct_loops(g, &edges, group)) {
+            self.warnings.push(format!(
+                "loop correction at frame {frame} in {group:?}: {e}"
+            ));
+        }
+        self.record.timings.record("loop: correction", t.elapsed());
     }
 
     /// Ends the current map and starts again at the next frame.
@@ -850,30 +911,16 @@ impl LiveRun<2> for MonoSystem {
             let edges: Vec<LoopEdge> = self
                 .loops
                 .as_ref()
-                .map(|l| {
-                    l.edges
-                        .iter()
-                        .map(|d| LoopEdge {
-                            old: d.old.index(),
-                            current: d.current.index(),
-                            old_from_current: d.current_from_old.inverse(),
-                        })
-                        .collect()
-                })
+                .map(|l| loop_edges(&l.edges))
                 .unwrap_or_default();
-            let primary = if self.config.mono.loop_correction == "se3" {
-                CorrectionGroup::Se3
-            } else {
-                CorrectionGroup::Sim3
-            };
-            let other = match primary {
-                CorrectionGroup::Sim3 => CorrectionGroup::Se3,
-                CorrectionGroup::Se3 => CorrectionGroup::Sim3,
-            };
-            let groups = if edges.is_empty() {
-                vec![]
-            } else {
-                vec![primary, other]
+            let (primary, other) = correction_groups(&self.config.mono.loop_correction);
+            // Corrected live, the map holds the primary group's correction already; the other
+            // group's would start from it, so it is not written (run again with the other
+            // `mono.loop_correction` for the thesis's comparison).
+            let groups = match (edges.is_empty(), self.config.mono.correct_live) {
+                (true, _) => vec![],
+                (false, true) => vec![primary],
+                (false, false) => vec![primary, other],
             };
             let keyframe_of: std::collections::HashMap<usize, KeyframeId> = map
                 .keyframe_ids()
@@ -905,14 +952,8 @@ impl LiveRun<2> for MonoSystem {
             let mut corrected_graph = map.graph.clone();
             for (i, &group) in groups.iter().enumerate() {
                 let mut g = map.graph.clone();
-                let options = lsq::SolverOptions {
-                    max_iterations: 50,
-                    threads: Some(1),
-                    ..lsq::SolverOptions::default()
-                };
-                let jacobian = PoseGraphJacobian::Analytic(lie::LogJacobian::Exact);
-                match correct_graph(&mut g, &edges, group, jacobian, &options) {
-                    Ok(_) => {
+                match correct_loops(&mut g, &edges, group) {
+                    Ok(()) => {
                         let name = match group {
                             CorrectionGroup::Sim3 => "trajectory_final_sim3",
                             CorrectionGroup::Se3 => "trajectory_final_se3",

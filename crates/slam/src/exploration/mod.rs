@@ -413,6 +413,52 @@ impl MonoExplorer {
         true
     }
 
+    /// Corrects the map by `correct` — a loop correction that moves and rescales keyframes
+    /// (thesis ch. 5, [`crate::loop_closure::correction::correct_graph`]; anchored points
+    /// follow their keyframes) — and carries the exploration with it: the last frame's pose
+    /// and the motion model follow the last keyframe (its translation rescaled by the
+    /// keyframe's change of scale), and the running feature filters are dropped (their
+    /// depths are in the metric before the correction; new ones start at the next keyframe).
+    /// Nothing changes if `correct` fails.
+    pub fn correct_map<E>(
+        &mut self,
+        correct: impl FnOnce(&mut SlamGraph<2>) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let last = self.map.keyframe_ids().last();
+        let before = last.map(|k| (self.map.rigid_pose(k), self.scale(k)));
+        let mut graph = self.map.graph.clone();
+        correct(&mut graph)?;
+        self.map.graph = graph;
+        if let (Some(k), Some((pose_before, scale_before))) = (last, before)
+            && let pose_after = self.map.rigid_pose(k)
+            && let factor = scale_before / self.scale(k)
+            && let State::Tracking {
+                last_pose,
+                velocity,
+                ..
+            } = &mut self.state
+        {
+            // A camera-frame length keeps its keyframe-metric value; in world units it
+            // changes by s_before/s_after (rigid poses are (R, t/s)).
+            let rescale = |t: &Se3| Se3::new(*t.rotation(), t.translation() * factor);
+            let relative = rescale(&last_pose.compose(&pose_before.inverse()));
+            *last_pose = relative.compose(&pose_after);
+            *velocity = rescale(velocity);
+        }
+        self.filters.retain(|_, _| false);
+        self.filter_of_track.clear();
+        Ok(())
+    }
+
+    fn scale(&self, k: KeyframeId) -> f64 {
+        self.map
+            .graph
+            .keyframe(k)
+            .expect("keyframes are never removed")
+            .camera_from_world()
+            .scale()
+    }
+
     /// Number of running feature filters.
     pub fn num_filters(&self) -> usize {
         self.filters.len()
@@ -1056,6 +1102,45 @@ mod tests {
             explorer.process(f, m).unwrap();
         }
         explorer
+    }
+
+    /// A correction that rescales the whole map by `a` (every keyframe `S ← S·diag(1/a)`, the
+    /// points follow their anchors): the motion model follows it exactly, and exploring on
+    /// gives the trajectory of the uncorrected run scaled by `a`.
+    #[test]
+    fn exploration_goes_on_in_a_corrected_map() {
+        let (_, frames) = sideways(2, 120, 0.5);
+        let a = 2.0;
+        let plain = explore(&frames, 0.5);
+        let mut explorer = explore(&frames[..60], 0.5);
+        let before = explorer.predicted_pose(60).unwrap();
+        explorer
+            .correct_map(|g| {
+                let ids: Vec<KeyframeId> = g.keyframes().map(|(k, _)| k).collect();
+                for k in ids {
+                    let s = g.pose(k)?.compose(
+                        &Sim3::new(lie::So3::identity(), Vector3::zeros(), 1.0 / a).unwrap(),
+                    );
+                    g.set_pose(k, s)?;
+                }
+                Ok::<(), crate::map::GraphError>(())
+            })
+            .unwrap();
+        assert_eq!(explorer.num_filters(), 0);
+        let after = explorer.predicted_pose(60).unwrap();
+        assert!((centre(&after) - a * centre(&before)).norm() < 1e-9);
+        assert!((after.rotation().log() - before.rotation().log()).norm() < 1e-12);
+        for (f, m) in frames.iter().enumerate().skip(60) {
+            explorer.process(f, m).unwrap();
+        }
+        let (p, q) = (plain.frame_poses(), explorer.frame_poses());
+        assert_eq!(p.len(), q.len());
+        let path = (centre(&p[p.len() - 1].1) - centre(&p[0].1)).norm();
+        for ((f, x), (g, y)) in p.iter().zip(&q).filter(|((f, _), _)| *f >= 60) {
+            assert_eq!(f, g);
+            let error = (centre(y) / a - centre(x)).norm();
+            assert!(error < 0.02 * path, "{error} of a {path} path");
+        }
     }
 
     /// Bootstrap, tracking, keyframes, feature initialisation and window BA on a sideways
