@@ -13,7 +13,10 @@
 //!    selection between homography and essential matrix (`geom::bootstrap`), motion-only BA
 //!    from a constant-velocity prior, keyframes by distance relative to the scene depth,
 //!    inverse-depth feature filters (thesis eq. 3.35–3.37) started at quadtree-selected tracks
-//!    of keyframes and promoted when converged, sliding-window BA.
+//!    of keyframes and promoted when converged, and a keyframe BA over the keyframes sharing
+//!    most points with the new one, older keyframes measuring their points held fixed, the
+//!    measurements it does not explain removed (map reuse: a revisited place's points, found
+//!    again by guided search, hold the new keyframes where the old map has them).
 //!
 //! When the bootstrap finds no geometry within `max_bootstrap_frames`, or tracking loses the
 //! map, the system starts again from the current frame: the frames in between are `lost` with
@@ -32,7 +35,7 @@ use data::trajectory::Trajectory;
 use geom::PinholeCamera;
 use lie::{LieGroup, Se3, Sim3};
 use nalgebra::{Vector2, Vector3};
-use slam::exploration::{ExplorationConfig, ExplorationError, MonoExplorer, TrackId};
+use slam::exploration::{ExplorationConfig, ExplorationError, LocalWindow, MonoExplorer, TrackId};
 use slam::loop_closure::correction::correct_graph;
 use slam::loop_closure::{CorrectionGroup, LoopEdge};
 use slam::map::KeyframeId;
@@ -228,6 +231,12 @@ pub fn exploration_config(
             p
         }),
         theta: config.mapping.theta,
+        // Map reuse: the keyframes sharing most points with the new one are optimised, older
+        // observers of their points held fixed, and what the optimum does not explain removed
+        // (see `MonoConfig::fixed_observers`).
+        local_window: LocalWindow::Covisible,
+        fixed_observers: m.fixed_observers,
+        remove_outliers: true,
         ..ExplorationConfig::default()
     }
 }

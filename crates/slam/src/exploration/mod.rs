@@ -27,10 +27,15 @@
 //!    `feature_spacing` pixels (the bounding-box test of Mei et al. 2009, Fig. 3.7), until
 //!    `max_features` are tracked. A new filter starts at the median inverse depth of the
 //!    keyframe's map points (no depth prior is imposed: `Λ_ψ` has no depth information).
-//! 5. **Sliding-window BA** (§3.3.3) over the last `window` keyframes, with the first two of
-//!    the window fixed: they anchor the window to the trajectory and fix the scale gauge.
-//!    Points measured at least twice in the window are optimised (eliminated by the Schur
-//!    complement); points measured once are held fixed.
+//! 5. **Keyframe BA** (§3.3.3) over a window of `window` keyframes: the last ones (the
+//!    thesis's sliding window, [`LocalWindow::Sliding`]) or the new keyframe, the one before it
+//!    and those sharing most points with it ([`LocalWindow::Covisible`]: on a revisit the old
+//!    keyframes of the place are optimised with the new ones). Up to `fixed_observers` older
+//!    keyframes that measure the window's points join as fixed poses; with fewer than two of
+//!    them the window's two oldest keyframes are fixed instead. Either anchors the window to
+//!    the trajectory and fixes the scale gauge. Points measured at least twice are optimised
+//!    (eliminated by the Schur complement); points measured once are held fixed. With
+//!    `remove_outliers`, the measurements the optimum does not explain leave the map.
 //!
 //! A track that is not measured in a frame ends: its map point leaves the active set (and its
 //! filter is dropped). A world point seen again later is a new track — only loop closure
@@ -116,6 +121,31 @@ pub struct ExplorationConfig {
     /// thesis §6.2.6) go to the keyframes sharing at least this many points with it, and
     /// always to the previous keyframe.
     pub theta: usize,
+    /// The window of the keyframe BA: the last `window` keyframes (the thesis ch. 3/5
+    /// explorer, [`LocalWindow::Sliding`]) or the keyframes sharing most points with the new one
+    /// ([`LocalWindow::Covisible`]).
+    pub local_window: LocalWindow,
+    /// Keyframes outside the window that measure its points join the BA as fixed poses, at
+    /// most this many (those measuring most of them); with two or more the window needs no pose
+    /// of its own fixed. 0: none (the window's two oldest keyframes are fixed).
+    pub fixed_observers: usize,
+    /// After the keyframe BA, the measurements it does not explain (squared re-projection
+    /// error beyond the χ² 95 % gate of two degrees of freedom, `5.99·σ²`) leave the map, and a
+    /// track whose measurement in the new keyframe is one stops measuring its point (its data
+    /// association is suspect: a drifted or jumped corner track, a wrong re-found match).
+    /// Off in the thesis's simulated explorations, whose data association is perfect.
+    pub remove_outliers: bool,
+}
+
+/// Which keyframes the keyframe BA of [`MonoExplorer`] optimises.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LocalWindow {
+    /// The last `window` keyframes (thesis §3.3.3).
+    Sliding,
+    /// The new keyframe, the previous one and the keyframes sharing most points with the new
+    /// one, `window` in all: on a revisit the old keyframes of the place join the window, so
+    /// the points measured again are optimised with their old measurements.
+    Covisible,
 }
 
 impl Default for ExplorationConfig {
@@ -146,6 +176,9 @@ impl Default for ExplorationConfig {
             seed: 0,
             double_window: None,
             theta: 20,
+            local_window: LocalWindow::Sliding,
+            fixed_observers: 0,
+            remove_outliers: false,
         }
     }
 }
@@ -798,7 +831,7 @@ impl MonoExplorer {
                         }
                     }
                 }
-                None => self.window_ba()?,
+                None => self.window_ba(k)?,
             }
             pose = self.map.rigid_pose(k);
         }
@@ -959,21 +992,105 @@ impl MonoExplorer {
         started
     }
 
-    /// Sliding-window BA over the last `window` keyframes, the first two fixed (§3.3.3), on
-    /// Euclidean points (points measured once in the window held fixed); the points are
-    /// written back anchored in their (possibly moved) anchor keyframes.
-    fn window_ba(&mut self) -> Result<(), ExplorationError> {
-        let graph = &self.map.graph;
+    /// The keyframes the BA of new keyframe `k` optimises, oldest first
+    /// ([`ExplorationConfig::local_window`]).
+    fn local_keyframes(&self, k: KeyframeId) -> Vec<KeyframeId> {
+        let window = self.config.window.max(3);
         let n = self.map.keyframes.len();
-        let start = n.saturating_sub(self.config.window.max(3));
-        let window: Vec<KeyframeId> = (start..n).map(KeyframeId::from_index).collect();
-        let poses: Vec<Se3> = window.iter().map(|&k| self.map.rigid_pose(k)).collect();
+        match self.config.local_window {
+            LocalWindow::Sliding => (n.saturating_sub(window)..n)
+                .map(KeyframeId::from_index)
+                .collect(),
+            LocalWindow::Covisible => {
+                let graph = &self.map.graph;
+                let mut shared: BTreeMap<KeyframeId, usize> = BTreeMap::new();
+                for p in graph.keyframe(k).expect("in the map").observations().keys() {
+                    for &o in graph.point(*p).expect("in the map").observers() {
+                        if o != k {
+                            *shared.entry(o).or_default() += 1;
+                        }
+                    }
+                }
+                let previous = KeyframeId::from_index(k.index().saturating_sub(1));
+                let mut by_weight: Vec<(usize, KeyframeId)> = shared
+                    .into_iter()
+                    .filter(|&(o, _)| o != previous)
+                    .map(|(o, c)| (c, o))
+                    .collect();
+                // Most shared points first, the newer keyframe on a tie.
+                by_weight.sort_by(|a, b| b.cmp(a));
+                let mut local: Vec<KeyframeId> = vec![k];
+                if previous != k {
+                    local.push(previous);
+                }
+                local.extend(
+                    by_weight
+                        .into_iter()
+                        .map(|(_, o)| o)
+                        .take(window.saturating_sub(local.len())),
+                );
+                local.sort();
+                local
+            }
+        }
+    }
+
+    /// The keyframe BA of new keyframe `k` (§3.3.3) on Euclidean points: the window's keyframes
+    /// ([`Self::local_keyframes`]) and the points they measure are optimised; up to
+    /// `fixed_observers` other keyframes measuring those points join as fixed poses, and
+    /// with fewer than two of them the window's two oldest keyframes are fixed (they anchor
+    /// the window to the trajectory and fix the scale gauge). Points measured once in all
+    /// are held fixed. The points are written back anchored in their (possibly moved) anchor
+    /// keyframes.
+    fn window_ba(&mut self, k: KeyframeId) -> Result<(), ExplorationError> {
+        let graph = &self.map.graph;
+        let local = self.local_keyframes(k);
         let mut count: BTreeMap<PointId, usize> = BTreeMap::new();
-        for &k in &window {
-            for &p in graph.keyframe(k).expect("in the map").observations().keys() {
+        for &w in &local {
+            for &p in graph.keyframe(w).expect("in the map").observations().keys() {
                 *count.entry(p).or_default() += 1;
             }
         }
+        // Other observers of the window's points, those measuring most of them first.
+        let mut fixed: Vec<KeyframeId> = Vec::new();
+        if self.config.fixed_observers > 0 {
+            let in_local: HashSet<KeyframeId> = local.iter().copied().collect();
+            let mut measuring: BTreeMap<KeyframeId, usize> = BTreeMap::new();
+            for p in count.keys() {
+                for &o in graph.point(*p).expect("in the map").observers() {
+                    if !in_local.contains(&o) {
+                        *measuring.entry(o).or_default() += 1;
+                    }
+                }
+            }
+            let mut by_count: Vec<(usize, KeyframeId)> =
+                measuring.into_iter().map(|(o, c)| (c, o)).collect();
+            by_count.sort_by(|a, b| b.cmp(a));
+            fixed.extend(
+                by_count
+                    .into_iter()
+                    .take(self.config.fixed_observers)
+                    .map(|(_, o)| o),
+            );
+            fixed.sort();
+            for &f in &fixed {
+                for &p in graph.keyframe(f).expect("in the map").observations().keys() {
+                    if let Some(c) = count.get_mut(&p) {
+                        *c += 1;
+                    }
+                }
+            }
+        }
+        // Window first (optimised), then the fixed observers; the gauge.
+        let window: Vec<KeyframeId> = local.iter().chain(&fixed).copied().collect();
+        let gauge: Vec<usize> = if fixed.len() >= 2 {
+            (local.len()..window.len()).collect()
+        } else {
+            (0..2.min(local.len()))
+                .chain(local.len()..window.len())
+                .collect()
+        };
+        let poses: Vec<Se3> = window.iter().map(|&k| self.map.rigid_pose(k)).collect();
         let index: BTreeMap<PointId, usize> =
             count.keys().enumerate().map(|(i, &p)| (p, i)).collect();
         let points: Vec<Vector3<f64>> = count
@@ -987,10 +1104,13 @@ impl MonoExplorer {
             .flat_map(|(wi, &k)| {
                 let obs = graph.keyframe(k).expect("in the map").observations();
                 let index = &index;
-                obs.iter().map(move |(p, z)| Observation {
-                    pose: wi,
-                    point: index[p],
-                    measurement: *z,
+                // A fixed observer's other points are not in the problem.
+                obs.iter().filter_map(move |(p, z)| {
+                    Some(Observation {
+                        pose: wi,
+                        point: *index.get(p)?,
+                        measurement: *z,
+                    })
                 })
             })
             .collect();
@@ -1002,7 +1122,7 @@ impl MonoExplorer {
             self.config.sigma,
             Some(RobustKernel::Huber(self.config.huber)),
             BaMode::Full,
-            &Gauge::FixPoses(vec![0, 1]),
+            &Gauge::FixPoses(gauge),
         )
         .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
         for (v, &c) in ba.points.iter().zip(count.values()) {
@@ -1014,13 +1134,33 @@ impl MonoExplorer {
             .optimise(&solver(self.config.ba_iterations))
             .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
         let (poses, points) = (ba.camera_from_world(), ba.points_world());
-        for (&k, t) in window.iter().zip(&poses) {
+        for (&k, t) in local.iter().zip(&poses) {
             self.map
                 .graph
                 .set_pose(k, Sim3::from_se3(t))
                 .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
             self.filters
                 .set_anchor_pose(self.map.keyframes[k.index()].frame, *t);
+        }
+        // Measurements the optimum does not explain leave the map (after the points are
+        // written back, below).
+        let mut outliers: Vec<(KeyframeId, PointId)> = Vec::new();
+        if self.config.remove_outliers {
+            let gate = lsq::chi2_quantile(2, 0.95) * self.config.sigma * self.config.sigma;
+            let ids: Vec<PointId> = count.keys().copied().collect();
+            let all_poses = ba.camera_from_world();
+            for o in &observations {
+                let p = ids[o.point];
+                if count[&p] < 2 {
+                    continue;
+                }
+                let x = all_poses[o.pose].act(&points[o.point]);
+                let explained = CameraModel::project(&self.camera, &x)
+                    .is_ok_and(|z| (z - o.measurement).norm_squared() <= gate);
+                if !explained {
+                    outliers.push((window[o.pose], p));
+                }
+            }
         }
         for (&p, y) in count.keys().zip(&points) {
             let graph = &mut self.map.graph;
@@ -1031,6 +1171,15 @@ impl MonoExplorer {
                 graph
                     .set_inverse_depth(p, psi)
                     .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            }
+        }
+        for (kf, p) in outliers {
+            self.map
+                .graph
+                .remove_observation(kf, p)
+                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            if kf == k || self.map.graph.point(p).is_none() {
+                self.active.retain(|_, q| *q != p);
             }
         }
         Ok(())
