@@ -72,6 +72,16 @@ pub struct BootstrapConfig {
     pub max_relative_depth_error: f64,
     /// Fewest well triangulated points for a bootstrap.
     pub min_triangulated: usize,
+    /// `Some(floor)`: the parallax requirement ([`Self::min_parallax`]) uses the corner noise
+    /// measured on the two frames instead of `pixel_sigma` — the robust estimate
+    /// `σ̂ = √(median(e²) / median(χ²_d))` from the chosen model's inliers (`e` their Sampson
+    /// distances in pixels, `d` = 1 for the epipolar constraint, 2 for a homography), clamped
+    /// to `[floor, pixel_sigma]`. Tracks followed by sub-pixel optical flow over a few frames
+    /// are often far better than the noise a system assumes for every frame (`pixel_sigma`
+    /// covers motion blur), and the depth error a parallax gives depends on the noise the
+    /// tracks have; the floor keeps the estimate from trusting a residual the fit absorbed.
+    /// `None`: `pixel_sigma`.
+    pub min_pixel_sigma: Option<f64>,
     /// A candidate motion is ambiguous when the runner-up triangulates more than this fraction
     /// of the best one's points.
     pub ambiguity_ratio: f64,
@@ -104,6 +114,7 @@ impl BootstrapConfig {
             chi2_two_dof,
             max_relative_depth_error: 0.1,
             min_triangulated: 50,
+            min_pixel_sigma: None,
             ambiguity_ratio: 0.75,
             ransac: RansacConfig {
                 max_iterations: 2_000,
@@ -117,8 +128,12 @@ impl BootstrapConfig {
     /// `z ≈ b/θ` (baseline `b`, parallax `θ`) has relative error `δz/z = δθ/θ`, so
     /// `θ_min = √2·σ / (f·ε)` (radians).
     pub fn min_parallax(&self) -> f64 {
-        std::f64::consts::SQRT_2 * self.pixel_sigma
-            / (self.pixel_scale * self.max_relative_depth_error)
+        self.min_parallax_for(self.pixel_sigma)
+    }
+
+    /// [`Self::min_parallax`] for corner noise `sigma` (pixels).
+    pub fn min_parallax_for(&self, sigma: f64) -> f64 {
+        std::f64::consts::SQRT_2 * sigma / (self.pixel_scale * self.max_relative_depth_error)
     }
 
     fn validate(&self) -> Result<(), TwoViewError> {
@@ -131,6 +146,14 @@ impl BootstrapConfig {
         }
         if !positive(self.chi2_one_dof) || !positive(self.chi2_two_dof) {
             return Err(TwoViewError::InvalidConfig("the χ² gates must be positive"));
+        }
+        if self
+            .min_pixel_sigma
+            .is_some_and(|s| !(positive(s) && s <= self.pixel_sigma))
+        {
+            return Err(TwoViewError::InvalidConfig(
+                "min_pixel_sigma must be positive and at most pixel_sigma",
+            ));
         }
         if !positive(self.max_relative_depth_error) {
             return Err(TwoViewError::InvalidConfig(
@@ -176,6 +199,11 @@ pub struct TwoViewBootstrap {
     pub points: Vec<Option<Vector3<f64>>>,
     /// The median angle (radians) between the inliers' rays `R·m̃_a` and `m̃_b`.
     pub median_parallax: f64,
+    /// The corner noise (pixels) the parallax requirement used: `pixel_sigma`, or the one
+    /// measured on the inliers ([`BootstrapConfig::min_pixel_sigma`]).
+    pub pixel_sigma: f64,
+    /// The median parallax that was required (radians).
+    pub required_parallax: f64,
     /// GRIC of the homography (`∞` when RANSAC found none).
     pub gric_homography: f64,
     /// GRIC of the essential matrix (`∞` when RANSAC found none).
@@ -323,7 +351,35 @@ pub fn bootstrap_pose(
             explained[i] = true;
         }
     }
-    let whiten = f * f / (sigma * sigma);
+    // The corner noise the data show (`min_pixel_sigma`): from the residuals of the general
+    // model, the epipolar constraint, which holds for any rigid scene (a homography's residuals
+    // also hold its model error when the scene has depth), or the homography's when there is
+    // no essential matrix. It whitens GRIC's residuals and sets the parallax requirement; the
+    // RANSAC gates above stay at the assumed `σ`, the safe side for telling inliers.
+    let pixel_sigma = match config.min_pixel_sigma {
+        Some(floor) => {
+            let squared: Vec<f64> = match (&e_fit, &h_fit) {
+                (Some(e), _) => e
+                    .inliers
+                    .iter()
+                    .map(|&i| {
+                        (f * sampson_distance(&e.model, &m_a[i], &m_b[i])).powi(2) / CHI2_1_MEDIAN
+                    })
+                    .collect(),
+                (None, Some(h)) => h
+                    .inliers
+                    .iter()
+                    .map(|&i| {
+                        (f * h.model.sampson_distance(&m_a[i], &m_b[i])).powi(2) / CHI2_2_MEDIAN
+                    })
+                    .collect(),
+                (None, None) => Vec::new(),
+            };
+            median(squared).sqrt().clamp(floor, sigma)
+        }
+        None => sigma,
+    };
+    let whiten = f * f / (pixel_sigma * pixel_sigma);
     let explained_idx = || (0..n).filter(|&i| explained[i]);
     let gric_homography = h_fit.as_ref().map_or(f64::INFINITY, |r| {
         gric(
@@ -361,7 +417,7 @@ pub fn bootstrap_pose(
     let second = evaluations.get(1).map_or(0, |e| e.0.good.len());
     let (best, b_from_a, model) = evaluations.swap_remove(0);
     let median_parallax = median(best.parallax);
-    let required = config.min_parallax();
+    let required = config.min_parallax_for(pixel_sigma);
     if median_parallax.is_nan() || median_parallax < required {
         return Err(TwoViewError::TooLittleParallax {
             median_parallax,
@@ -395,10 +451,17 @@ pub fn bootstrap_pose(
         inliers: inlier_mask,
         points,
         median_parallax,
+        pixel_sigma,
+        required_parallax: required,
         gric_homography,
         gric_essential,
     })
 }
+
+/// The median of χ² with one degree of freedom, `Φ⁻¹(0.75)²`.
+const CHI2_1_MEDIAN: f64 = 0.454_936_423_119_572_8;
+/// The median of χ² with two degrees of freedom, `2·ln 2`.
+const CHI2_2_MEDIAN: f64 = std::f64::consts::LN_2 * 2.0;
 
 #[cfg(test)]
 mod tests {
@@ -511,6 +574,56 @@ mod tests {
             1.0,
         )
         .normalize()
+    }
+
+    /// Tracks far better than the assumed noise (σ = 0.1 px against `pixel_sigma` = 1 px) and
+    /// a small baseline: with the assumed noise the parallax is too little (a 10 % depth error
+    /// needs 1.6° at f = 500 px and σ = 1 px; a 4.5 cm baseline at 3–8 m gives about 0.5°);
+    /// measured on the data, the noise is the true one, or the floor (0.25 px: 0.4° needed),
+    /// and the bootstrap succeeds with the true motion. A floor above `pixel_sigma` is
+    /// refused.
+    #[test]
+    fn measured_noise_sets_the_parallax_a_bootstrap_needs() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let b_from_a = motion(&mut rng, 0.045, SIDEWAYS);
+        let pts = volume(&mut rng, 200);
+        let (m_a, m_b) = views(&mut rng, &b_from_a, &pts, 0.1, false);
+        let assumed = BootstrapConfig {
+            pixel_sigma: 1.0,
+            ..config(3)
+        };
+        match bootstrap_pose(&m_a, &m_b, &assumed) {
+            Err(TwoViewError::TooLittleParallax {
+                median_parallax,
+                required,
+            }) => assert!(median_parallax < required, "{median_parallax} {required}"),
+            other => panic!("{other:?}"),
+        }
+        let measured = BootstrapConfig {
+            min_pixel_sigma: Some(0.25),
+            ..assumed
+        };
+        let r = bootstrap_pose(&m_a, &m_b, &measured).unwrap();
+        assert_eq!(r.pixel_sigma, 0.25, "the floor: the data show 0.1 px");
+        assert!((r.required_parallax - measured.min_parallax_for(0.25)).abs() < 1e-15);
+        assert!(matches!(r.model, TwoViewModel::Essential(_)));
+        let (rot, dir) = pose_error(&r.b_from_a, &b_from_a);
+        assert!(rot < 0.002 && dir < 0.05, "{rot} {dir}");
+        // Without a floor below it, the noise estimate is the data's.
+        let free = BootstrapConfig {
+            min_pixel_sigma: Some(0.01),
+            ..assumed
+        };
+        let r = bootstrap_pose(&m_a, &m_b, &free).unwrap();
+        assert!((0.07..0.13).contains(&r.pixel_sigma), "{}", r.pixel_sigma);
+        let wrong = BootstrapConfig {
+            min_pixel_sigma: Some(2.0),
+            ..assumed
+        };
+        assert!(matches!(
+            bootstrap_pose(&m_a, &m_b, &wrong),
+            Err(TwoViewError::InvalidConfig(_))
+        ));
     }
 
     /// Exact views of a plane: the homography is chosen (the 8-point algorithm is degenerate on

@@ -63,7 +63,9 @@ pub enum TwoViewError {
     /// median angle between them is below the required one (pure rotation or too short a
     /// baseline). A live system keeps tracking and tries again with a later frame.
     #[error(
-        "too little parallax: median ray angle {median_parallax:.5} rad, need {required:.5} rad"
+        "too little parallax: median ray angle {:.2}°, need {:.2}°",
+        median_parallax.to_degrees(),
+        required.to_degrees()
     )]
     TooLittleParallax {
         /// The median parallax of the inliers (radians).

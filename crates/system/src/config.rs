@@ -85,8 +85,13 @@ pub struct MonoConfig {
     /// Pyramid levels of the tracking (4, as the front-end: ±40 px of motion at the finest
     /// level with LK's ±3 px per level).
     pub levels: usize,
-    /// Features (map points and filters) the exploration keeps (150: the thesis's §3.4.3
-    /// density, ≈ one per 45×45 px at 640×480).
+    /// Features (map points and filters) the exploration keeps (300, as many as the corner
+    /// tracks: ≈ one per 32×32 px at 640×480, the density of the stereo system's 300 new points
+    /// per keyframe). The thesis's §3.4.3 density for its simulated exploration, 150, left a
+    /// live camera too few map points where some leave the view at once: measured over the
+    /// eleven monocular test sequences (2026-12-02, with `max_refind` 200), 150 lost the scale
+    /// of 7-Scenes in a stretch of 20 tracked points (21 cm ATE), 200 as well (55 cm), 300
+    /// tracked it (4.3 cm) and lowered the rendered rooms from 1.0–3.1 to 0.8–1.6 cm.
     pub max_features: usize,
     /// A new feature needs a feature-free box of this half-size, pixels (12).
     pub feature_spacing: f64,
@@ -99,6 +104,13 @@ pub struct MonoConfig {
     /// The bootstrap waits for the parallax at which a typical point's relative depth error
     /// is at most this (0.1: `θ ≥ √2·σ/(f·ε)`, 1.5° at f = 525 px, σ = 1 px).
     pub bootstrap_depth_error: f64,
+    /// The bootstrap measures the tracks' noise on its two frames (the inliers' epipolar or
+    /// homography residuals) and asks for the parallax that noise needs, not `pixel_noise`'s:
+    /// the estimate is taken no lower than this many pixels (0.25: a corner followed by
+    /// sub-pixel optical flow is located to about a quarter pixel on real images — the tracks
+    /// of 7-Scenes' first frames measure 0.10–0.28 px, KITTI's 0.25–0.41 px — and a residual
+    /// below it is more likely noise the fit absorbed than a better track).
+    pub bootstrap_min_sigma: f64,
     /// Give up a bootstrap after this many frames and start again from the current one (30:
     /// a second at 30 Hz; a camera that has not moved enough by then is better started anew
     /// from what it sees now).
@@ -112,12 +124,24 @@ pub struct MonoConfig {
     /// for the frame (thesis §6.2.5: tracking against the points of the reference's
     /// neighbourhood, so a revisit measures the old map instead of triangulating it anew).
     pub refind: bool,
-    /// The keyframes whose points are searched: the nearest this many (by camera centre) that
-    /// look within `tracker.max_view_angle_deg` of the predicted direction (8: the covisible
-    /// neighbourhood a stereo keyframe's `N1` has on the same sequences).
+    /// Check each frame's measurement of every map point followed by a corner track against
+    /// the point's template from its anchor keyframe (`crate::search::relocate`): the
+    /// measurement moves to where the template aligns, and a track that drifted off its
+    /// point or jumped to another corner stops measuring it. Optical flow drifts a little with
+    /// every frame; a point measured for hundreds of frames (a camera browsing a mapped place)
+    /// would otherwise be measured where its track has wandered to.
+    pub verify_tracks: bool,
+    /// The keyframes whose points are searched: of the last keyframe's neighbourhood (`N2`,
+    /// thesis §6.4.1: the first `mapping.n2` keyframes of a breadth-first search over the
+    /// keyframes sharing `mapping.theta` points, consecutive keyframes and accepted loops), the
+    /// nearest this many (by camera centre) that look within `tracker.max_view_angle_deg` of the
+    /// predicted direction (8: the covisible neighbourhood a stereo keyframe's `N1` has on the
+    /// same sequences). A place revisited after a longer path than `N2` reaches is a loop: it
+    /// is closed by appearance and the Sim(3) correction, not by searching its points with the
+    /// drifted pose.
     pub refind_keyframes: usize,
-    /// At most this many points are searched per frame (100: a third of the tracks; each
-    /// costs a warped template and a few correlations).
+    /// At most this many points are searched per frame (200: two thirds of the features; each
+    /// costs a warped template and a few correlations, ≈ 4 µs).
     pub max_refind: usize,
     /// Optimise each keyframe by the monocular double window (thesis §6.2.7; windows and
     /// iterations from `optimiser`, covisibility edges by local registration with
@@ -162,16 +186,18 @@ impl Default for MonoConfig {
             min_cell: 8.0,
             max_forward_backward: 1.0,
             levels: 4,
-            max_features: 150,
+            max_features: 300,
             feature_spacing: 12.0,
             window: 10,
             keyframe_distance: 0.05,
             bootstrap_depth_error: 0.1,
+            bootstrap_min_sigma: 0.25,
             max_bootstrap_frames: 30,
             max_refused: 10,
             refind: true,
+            verify_tracks: true,
             refind_keyframes: 8,
-            max_refind: 100,
+            max_refind: 200,
             double_window: false,
             loop_correction: "sim3".into(),
             correct_live: false,
@@ -537,11 +563,12 @@ impl SystemConfig {
         }
         if !(m.keyframe_distance > 0.0
             && m.bootstrap_depth_error > 0.0
+            && m.bootstrap_min_sigma > 0.0
             && m.track_spacing >= 0.0
             && m.feature_spacing >= 0.0
             && m.max_forward_backward > 0.0)
         {
-            return bad("mono.keyframe_distance, bootstrap_depth_error and max_forward_backward must be positive, the spacings non-negative".into());
+            return bad("mono.keyframe_distance, bootstrap_depth_error, bootstrap_min_sigma and max_forward_backward must be positive, the spacings non-negative".into());
         }
         if !matches!(m.loop_correction.as_str(), "sim3" | "se3") {
             return bad(format!(

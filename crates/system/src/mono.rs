@@ -28,7 +28,7 @@ use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
 use crate::live::{FrameReport, LiveRun, LoopEvent, RunResult, SystemError, skipped_frame};
 use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
-use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
+use crate::search::{SearchPoint, SearchScratch, predict, relocate, search, view_angle};
 use crate::tracker::TrackerStats;
 use data::output::{FrameRecord, KeyframeRecord, MapPoint, RunRecord, TrackingState};
 use data::trajectory::Trajectory;
@@ -104,6 +104,16 @@ impl CornerTracks {
         self.next += 1;
         live.push((id, p));
         Some(id)
+    }
+
+    /// Moves track `id` to `p` in the last frame (its measurement re-located on the point's
+    /// template): the next frame follows it from there.
+    pub fn correct(&mut self, id: TrackId, p: [f32; 2]) {
+        if let Some((_, live)) = self.previous.as_mut()
+            && let Some(t) = live.iter_mut().find(|t| t.0 == id)
+        {
+            t.1 = p;
+        }
     }
 
     /// Forgets every track: the next frame starts afresh (ids keep increasing).
@@ -217,6 +227,7 @@ pub fn exploration_config(
         image_width: width as f64,
         image_height: height as f64,
         bootstrap_depth_error: m.bootstrap_depth_error,
+        bootstrap_min_sigma: Some(m.bootstrap_min_sigma),
         // The depth error alone decides when the bootstrap has parallax enough.
         min_bootstrap_parallax: 0.0,
         max_bootstrap_frames: m.max_bootstrap_frames,
@@ -237,6 +248,10 @@ pub fn exploration_config(
         local_window: LocalWindow::Covisible,
         fixed_observers: m.fixed_observers,
         remove_outliers: true,
+        // The stereo system's keyframe criterion of coverage, with the mono distance, and its
+        // fraction of points found.
+        keyframe_rotation: Some(config.keyframes.rotation_deg.to_radians()),
+        keyframe_min_tracked_fraction: config.keyframes.min_found_fraction,
         ..ExplorationConfig::default()
     }
 }
@@ -269,6 +284,9 @@ pub struct MonoSystem {
     /// Per tracked frame: its position in the record, the last keyframe then, and the frame's
     /// pose relative to it (for the trajectory after the loops' correction).
     relative: Vec<(usize, KeyframeId, Se3)>,
+    /// The last keyframe's neighbourhood searched by `refind`, with the (keyframes, loops)
+    /// counts it was computed at.
+    neighbourhood: Option<((usize, usize), std::collections::HashSet<KeyframeId>)>,
 }
 
 /// Large loops by appearance in a monocular map (thesis ch. 5): each keyframe's ORB words and
@@ -349,6 +367,96 @@ fn loop_edges(detections: &[LoopDetection]) -> Vec<LoopEdge> {
             old_from_current: d.current_from_old.inverse(),
         })
         .collect()
+}
+
+/// The pose graph's constraints besides the chain and the loops (thesis §5.3.2 uses the chain
+/// alone): every pair of keyframes sharing at least `theta` map points, not consecutive,
+/// constrained to their relative pose in the map as it is (scale 1). With map reuse the map
+/// holds keyframes far apart on the path that measure the same points (a revisited place whose
+/// points were found again): the loop there is already closed, and these edges keep it closed
+/// where a chain alone would let a loop edge's noise — its scale from the regressed depths is
+/// good to a few per cent — bend it open again.
+fn covisibility_edges(graph: &SlamGraph<2>, theta: usize) -> Vec<LoopEdge> {
+    let mut shared: std::collections::BTreeMap<(KeyframeId, KeyframeId), usize> =
+        Default::default();
+    for (_, point) in graph.points() {
+        let observers: Vec<KeyframeId> = point.observers().iter().copied().collect();
+        for (i, &a) in observers.iter().enumerate() {
+            for &b in &observers[i + 1..] {
+                *shared.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+    }
+    shared
+        .into_iter()
+        .filter(|&((a, b), n)| n >= theta && b.index() > a.index() + 1)
+        .filter_map(|((a, b), _)| {
+            Some(LoopEdge {
+                old: a.index(),
+                current: b.index(),
+                old_from_current: graph.pose(a).ok()?.compose(&graph.pose(b).ok()?.inverse()),
+            })
+        })
+        .collect()
+}
+
+/// The keyframes within the first `limit` of a breadth-first search from the last keyframe over
+/// the covisibility graph (keyframes sharing at least `theta` points, and consecutive ones) and
+/// the accepted `loops`: the monocular `N2` (thesis §6.4.1).
+fn covisible_neighbourhood(
+    graph: &SlamGraph<2>,
+    theta: usize,
+    limit: usize,
+    loops: &[(KeyframeId, KeyframeId)],
+) -> std::collections::HashSet<KeyframeId> {
+    let mut seen = std::collections::HashSet::new();
+    let Some((last, _)) = graph.keyframes().last() else {
+        return seen;
+    };
+    let mut queue = std::collections::VecDeque::from([last]);
+    seen.insert(last);
+    while let Some(k) = queue.pop_front() {
+        let Some(kf) = graph.keyframe(k) else {
+            continue;
+        };
+        let mut shared: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
+        for p in kf.observations().keys() {
+            if let Some(pt) = graph.point(*p) {
+                for &o in pt.observers() {
+                    *shared.entry(o).or_default() += 1;
+                }
+            }
+        }
+        let mut next: Vec<(usize, KeyframeId)> = shared
+            .into_iter()
+            .filter(|&(o, n)| o != k && n >= theta)
+            .map(|(o, n)| (n, o))
+            .collect();
+        for j in [k.index().checked_sub(1), Some(k.index() + 1)]
+            .into_iter()
+            .flatten()
+            .filter(|&j| j < graph.keyframe_id_bound())
+        {
+            next.push((usize::MAX, KeyframeId::from_index(j)));
+        }
+        for &(a, b) in loops {
+            if a == k {
+                next.push((usize::MAX, b));
+            } else if b == k {
+                next.push((usize::MAX, a));
+            }
+        }
+        next.sort_by(|x, y| y.cmp(x));
+        for (_, o) in next {
+            if seen.len() >= limit {
+                return seen;
+            }
+            if seen.insert(o) {
+                queue.push_back(o);
+            }
+        }
+    }
+    seen
 }
 
 /// `mono.loop_correction`'s group and the other one.
@@ -433,6 +541,7 @@ impl MonoSystem {
             events: Vec::new(),
             rejected_loops: 0,
             relative: Vec::new(),
+            neighbourhood: None,
             warnings: Vec::new(),
         })
     }
@@ -544,7 +653,11 @@ impl MonoSystem {
             return;
         };
         let t = Instant::now();
-        let edges = loop_edges(&loops.edges);
+        let mut edges = loop_edges(&loops.edges);
+        edges.extend(covisibility_edges(
+            &explorer.map().graph,
+            self.config.mapping.theta,
+        ));
         let group = correction_groups(&self.config.mono.loop_correction).0;
         if let Err(e) = explorer.correct_map(|g| correct_loops(g, &edges, group)) {
             self.warnings.push(format!(
@@ -565,6 +678,7 @@ impl MonoSystem {
         }
         self.tracks.reset();
         self.images.clear();
+        self.neighbourhood = None;
         self.bootstrap_first = None;
         // A new map numbers its keyframes anew: the database starts empty, and the loops
         // found in the old map are gone with it.
@@ -613,6 +727,59 @@ fn keyframe_images(frame: &data::sequence::Frame) -> KeyframeImages {
 }
 
 impl MonoSystem {
+    /// Checks every track that measures a map point against the point's template (config
+    /// `mono.verify_tracks`, [`relocate`]): the measurement moves to where the template aligns,
+    /// within `tracker.search_radius` of the track, and the track with it; a track that no longer
+    /// shows its point leaves the frame's measurements (the exploration then drops the
+    /// association, the track goes on as a plain corner track). Returns how many were dropped.
+    fn verify(
+        &mut self,
+        frame: usize,
+        image: &GrayImage,
+        measurements: &mut Vec<(TrackId, Vector2<f64>)>,
+    ) -> usize {
+        if !self.config.mono.verify_tracks {
+            return 0;
+        }
+        let Some(explorer) = self.explorer.as_ref() else {
+            return 0;
+        };
+        let Some(pose) = explorer.predicted_pose(frame) else {
+            return 0;
+        };
+        let graph = &explorer.map().graph;
+        let active = explorer.active();
+        let (radius, min_ncc) = (
+            self.config.tracker.search_radius,
+            self.config.tracker.min_ncc,
+        );
+        let before = measurements.len();
+        let mut moved: Vec<(TrackId, [f32; 2])> = Vec::new();
+        measurements.retain_mut(|(track, z)| {
+            let Some(&p) = active.get(track) else {
+                return true;
+            };
+            // Without a template (its anchor's images are not kept) the track stands as is.
+            let Some((sp, anchor)) = SearchPoint::from_graph(graph, p)
+                .and_then(|sp| self.images.get(&sp.anchor).map(|a| (sp, a)))
+            else {
+                return true;
+            };
+            match relocate(&self.camera, &pose, &sp, anchor, image, *z, radius, min_ncc) {
+                Some(u) => {
+                    *z = u;
+                    moved.push((*track, [u.x as f32, u.y as f32]));
+                    true
+                }
+                None => false,
+            }
+        });
+        for (track, p) in moved {
+            self.tracks.correct(track, p);
+        }
+        before - measurements.len()
+    }
+
     /// Searches the map points of the keyframes near the predicted pose that no track measures
     /// (config `mono.refind`); each one found joins the frame's measurements — on the track
     /// already following that corner if it is not a feature, else on a new track — and is
@@ -642,8 +809,28 @@ impl MonoSystem {
             let (c, a) = (centre(&pose), axis(&pose));
             // A scan of every keyframe (a few hundred here: microseconds); a map of thousands
             // would want a spatial index.
+            // Only keyframes of the last keyframe's neighbourhood: a place revisited after a
+            // longer path is a loop, closed by appearance and the Sim(3) correction.
+            let loops = self.loops.as_ref().map_or(0, |l| l.edges.len());
+            let key = (map.keyframes.len(), loops);
+            if self.neighbourhood.as_ref().is_none_or(|(k, _)| *k != key) {
+                let edges: Vec<(KeyframeId, KeyframeId)> = self
+                    .loops
+                    .as_ref()
+                    .map(|l| l.edges.iter().map(|d| (d.current, d.old)).collect())
+                    .unwrap_or_default();
+                let hood = covisible_neighbourhood(
+                    &map.graph,
+                    config.mapping.theta,
+                    config.mapping.n2,
+                    &edges,
+                );
+                self.neighbourhood = Some((key, hood));
+            }
+            let hood = &self.neighbourhood.as_ref().expect("set above").1;
             let mut near: Vec<(f64, KeyframeId)> = map
                 .keyframe_ids()
+                .filter(|k| hood.contains(k))
                 .filter_map(|k| {
                     let t = map.rigid_pose(k);
                     (axis(&t).angle(&a) <= max_angle).then(|| ((centre(&t) - c).norm(), k))
@@ -781,6 +968,13 @@ impl LiveRun<2> for MonoSystem {
             }
         };
         let t = Instant::now();
+        self.verify(frame.index, image, &mut measurements);
+        if self.explorer.is_some() && self.config.mono.verify_tracks {
+            self.record
+                .timings
+                .record("mono: verify tracks", t.elapsed());
+        }
+        let t = Instant::now();
         let refound = self.refind(frame.index, image, &mut measurements);
         if self.explorer.is_some() && self.config.mono.refind {
             self.record
@@ -820,7 +1014,8 @@ impl LiveRun<2> for MonoSystem {
             Ok(o) => {
                 let state = match o.camera_from_world {
                     None => TrackingState::Lost(format!(
-                        "initialising: {n_tracks} corner tracks, waiting for parallax"
+                        "initialising: {n_tracks} corner tracks, {}",
+                        o.waiting.as_deref().unwrap_or("waiting")
                     )),
                     Some(_) if o.tracked < self.config.tracker.min_good => {
                         TrackingState::Weak(format!("{} map points tracked", o.tracked))
@@ -917,16 +1112,18 @@ impl LiveRun<2> for MonoSystem {
         if let Some(explorer) = self.explorer.take() {
             let poses = explorer.frame_poses();
             let map = explorer.into_map();
-            let edges: Vec<LoopEdge> = self
+            let mut edges: Vec<LoopEdge> = self
                 .loops
                 .as_ref()
                 .map(|l| loop_edges(&l.edges))
                 .unwrap_or_default();
+            let loops_found = !edges.is_empty();
+            edges.extend(covisibility_edges(&map.graph, self.config.mapping.theta));
             let (primary, other) = correction_groups(&self.config.mono.loop_correction);
             // Corrected live, the map holds the primary group's correction already; the other
             // group's would start from it, so it is not written (run again with the other
             // `mono.loop_correction` for the thesis's comparison).
-            let groups = match (edges.is_empty(), self.config.mono.correct_live) {
+            let groups = match (!loops_found, self.config.mono.correct_live) {
                 (true, _) => vec![],
                 (false, true) => vec![primary],
                 (false, false) => vec![primary, other],

@@ -149,3 +149,99 @@ pub fn search(
     let p = Patch::extract(image, refined[0], refined[1])?;
     (nssd(&template, &p) <= max_nssd).then(|| Vector2::new(refined[0] as f64, refined[1] as f64))
 }
+
+/// Re-locates `point` near `at`, where a corner track measures it: its template, warped from
+/// the anchor keyframe by the pose `camera_from_world` (a prediction is enough for the warp),
+/// is aligned to `image` from `at` to sub-pixel accuracy. The aligned position if it moved at
+/// most `max_shift` pixels and correlates with the template at least `min_ncc`, else `None`.
+///
+/// Optical flow follows a corner from frame to frame and drifts with every step; the template
+/// is the point's appearance where it was first measured, so aligning to it measures the point
+/// itself (the guided search of [`search`], started at the track instead of the prediction),
+/// and a track that drifted off it or jumped to another corner is caught.
+#[allow(clippy::too_many_arguments)]
+pub fn relocate(
+    camera: &PinholeCamera,
+    camera_from_world: &Se3,
+    point: &SearchPoint,
+    anchor: &KeyframeImages,
+    image: &GrayImage,
+    at: Vector2<f64>,
+    max_shift: f64,
+    min_ncc: f32,
+) -> Option<Vector2<f64>> {
+    let cur_from_anchor = camera_from_world.compose(&point.anchor_from_world.inverse());
+    let (_, warp) = affine_from_pose(
+        camera,
+        camera,
+        &point.anchor_pixel,
+        point.anchor_depth,
+        &cur_from_anchor,
+    )?;
+    let (ua, va) = (point.anchor_pixel.x as f32, point.anchor_pixel.y as f32);
+    let template = Patch::extract_warped(&anchor.gray, ua, va, &warp)?;
+    let tg = template_with_gradient(&anchor.gray, ua, va, &warp)?;
+    let refined = refine_subpixel(&tg, image, [at.x as f32, at.y as f32], 10)?;
+    let moved = Vector2::new(refined[0] as f64, refined[1] as f64);
+    if (moved - at).norm() > max_shift {
+        return None;
+    }
+    let p = Patch::extract(image, refined[0], refined[1])?;
+    (nssd(&template, &p) <= 2.0 - 2.0 * min_ncc).then_some(moved)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A smooth texture, shifted by `(dx, dy)` pixels (exact at any sub-pixel shift).
+    fn texture(dx: f64, dy: f64, phase: f64) -> GrayImage {
+        GrayImage::from_fn(160, 120, |u, v| {
+            let (x, y) = (u as f64 - dx, v as f64 - dy);
+            let i = 128.0
+                + 40.0 * (0.31 * x + 0.17 * y + phase).sin()
+                + 30.0 * (0.19 * x - 0.29 * y).sin()
+                + 20.0 * (0.43 * x + 0.11 * y - phase).cos();
+            i.round().clamp(0.0, 255.0) as u8
+        })
+    }
+
+    /// A track that drifted 0.9 px off its point is moved back onto it (the template from the
+    /// anchor aligns to the image); a track in an image that does not show the point is
+    /// refused, and so is one whose alignment would move it beyond `max_shift`.
+    #[test]
+    fn relocate_moves_a_drifted_track_back_onto_its_point_and_refuses_a_wrong_one() {
+        let camera = PinholeCamera::new(100.0, 100.0, 80.0, 60.0);
+        let anchor_pixel = Vector2::new(70.0, 55.0);
+        let depth = 2.0;
+        let world = depth * Vector3::new((70.0 - 80.0) / 100.0, (55.0 - 60.0) / 100.0, 1.0);
+        let point = SearchPoint {
+            point: PointId::from_index(0),
+            anchor: KeyframeId::from_index(0),
+            anchor_pixel,
+            anchor_depth: depth,
+            anchor_from_world: Se3::identity(),
+            world,
+        };
+        let anchor = KeyframeImages {
+            frame_index: 0,
+            timestamp: 0.0,
+            gray: texture(0.0, 0.0, 0.0),
+            depth: None,
+            colour: None,
+        };
+        // The camera did not turn: the warp is the identity, the point moved with the image.
+        let (dx, dy) = (2.4, -1.3);
+        let image = texture(dx, dy, 0.0);
+        let truth = anchor_pixel + Vector2::new(dx, dy);
+        let pose = Se3::identity();
+        let drifted = truth + Vector2::new(0.6, 0.7);
+        let found = relocate(&camera, &pose, &point, &anchor, &image, drifted, 3.0, 0.8).unwrap();
+        assert!((found - truth).norm() < 0.05, "{found:?} vs {truth:?}");
+        // Allowed to move 0.5 px only: refused.
+        assert!(relocate(&camera, &pose, &point, &anchor, &image, drifted, 0.5, 0.8).is_none());
+        // Another texture where the point was: no correlation.
+        let other = texture(dx, dy, 1.9);
+        assert!(relocate(&camera, &pose, &point, &anchor, &other, truth, 3.0, 0.8).is_none());
+    }
+}

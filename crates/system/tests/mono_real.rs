@@ -4,8 +4,9 @@
 //! the keyframe BA of the covisible window with older observers fixed and outliers removed);
 //! the trajectory of every frame is scored after Sim(3) alignment (a monocular map has its own
 //! scale). The bounds: KITTI at most ORB-SLAM3 mono's best run measured here (10.1 cm, issue
-//! 20); 7-Scenes a regression bound a little above today's 4.35 cm (ORB-SLAM3's best run
-//! measured here: 3.72 cm). Two deterministic runs are identical.
+//! 20); 7-Scenes initialised within 15 frames, 95 % tracked, a regression bound a little above
+//! today's 4.28 cm (ORB-SLAM3's best run measured here: 3.72 cm). Two deterministic runs are
+//! identical.
 
 use data::eval::{Alignment, ate};
 use data::paths;
@@ -131,7 +132,10 @@ fn seven_scenes_colour_camera_is_tracked_and_runs_are_deterministic() {
         a.result.record.keyframes.len(),
         a.result.warnings
     );
-    assert!(a.tracked * 100 >= 90 * a.frames, "{} tracked", a.tracked);
+    // Issue 20: initialised within the first 15 frames (the bootstrap measures the tracks'
+    // noise on its two frames), at least 95 % of the frames tracked.
+    assert!(a.first_pose < 15, "initialised at frame {}", a.first_pose);
+    assert!(a.tracked * 100 >= 95 * a.frames, "{} tracked", a.tracked);
     assert!(a.ate <= 0.055, "ATE {:.2} cm", a.ate * 100.0);
     // Frames before the first pose say why.
     for f in &a.result.record.frames[..a.first_pose.min(a.frames)] {

@@ -77,6 +77,14 @@ pub struct ExplorationConfig {
     pub keyframe_distance: f64,
     /// A keyframe also when fewer map points than this are tracked.
     pub min_tracked_for_keyframe: usize,
+    /// `Some(angle)` (radians): a keyframe only where no nearby keyframe covers the view —
+    /// within `keyframe_distance` of the scene depth *and* within this angle of its viewing
+    /// direction (`MonoExplorer::view_uncovered`); `None`: by distance from the last keyframe
+    /// alone (thesis §3.3.3).
+    pub keyframe_rotation: Option<f64>,
+    /// With `keyframe_rotation`: a nearby keyframe covers the view only if the frame tracks at
+    /// least this fraction of the map points that keyframe measures.
+    pub keyframe_min_tracked_fraction: f64,
     /// Tracking is lost below this many tracked map points.
     pub min_tracked: usize,
     /// New features are started until this many are tracked (map points and filters).
@@ -101,6 +109,10 @@ pub struct ExplorationConfig {
     /// The bootstrap waits for the parallax at which a typical point's relative depth error is
     /// at most this (`geom::bootstrap::BootstrapConfig::max_relative_depth_error`).
     pub bootstrap_depth_error: f64,
+    /// `Some(floor)`: the bootstrap's parallax requirement uses the corner noise measured on
+    /// the two frames, at least `floor` pixels and at most `sigma`
+    /// (`geom::bootstrap::BootstrapConfig::min_pixel_sigma`); `None`: `sigma`.
+    pub bootstrap_min_sigma: Option<f64>,
     /// Minimum fraction of the common tracks that must be inliers of the bootstrap's relative
     /// pose (a wrong two-view solution explains only a part of the correspondences).
     pub min_bootstrap_inlier_ratio: f64,
@@ -159,6 +171,8 @@ impl Default for ExplorationConfig {
             window: 10,
             keyframe_distance: 0.05,
             min_tracked_for_keyframe: 30,
+            keyframe_rotation: None,
+            keyframe_min_tracked_fraction: 0.5,
             min_tracked: 8,
             max_features: 150,
             feature_spacing: 12.0,
@@ -170,6 +184,7 @@ impl Default for ExplorationConfig {
             tracking_iterations: 10,
             min_bootstrap_parallax: 2f64.to_radians(),
             bootstrap_depth_error: 0.1,
+            bootstrap_min_sigma: None,
             min_bootstrap_inlier_ratio: 0.6,
             max_bootstrap_frames: 30,
             ransac: RansacConfig::default(),
@@ -285,6 +300,8 @@ pub struct FrameOutcome {
     pub started: usize,
     /// Filters running after this frame.
     pub filters: usize,
+    /// While bootstrapping: why this frame did not start the map (e.g. too little parallax).
+    pub waiting: Option<String>,
 }
 
 /// Why exploration stopped.
@@ -527,6 +544,7 @@ impl MonoExplorer {
                     promoted: 0,
                     started: 0,
                     filters: 0,
+                    waiting: Some("the first frame".into()),
                 })
             }
             State::Bootstrapping {
@@ -563,6 +581,7 @@ impl MonoExplorer {
                             promoted: 0,
                             started: 0,
                             filters: 0,
+                            waiting: Some(reason),
                         })
                     }
                 }
@@ -621,6 +640,10 @@ impl MonoExplorer {
             lsq::chi2_quantile(2, 0.95),
         );
         bootstrap.max_relative_depth_error = self.config.bootstrap_depth_error;
+        bootstrap.min_pixel_sigma = self
+            .config
+            .bootstrap_min_sigma
+            .map(|floor| floor.min(self.config.sigma));
         bootstrap.min_triangulated = self.config.min_tracked.max(8);
         bootstrap.ransac = RansacConfig {
             seed: self.config.ransac.seed ^ self.config.seed,
@@ -647,7 +670,7 @@ impl MonoExplorer {
             * self
                 .config
                 .min_bootstrap_parallax
-                .max(bootstrap.min_parallax());
+                .max(rel.required_parallax);
         let mut pts = Vec::new();
         for (i, p) in rel.points.iter().enumerate() {
             let Some(p) = p else { continue };
@@ -735,6 +758,7 @@ impl MonoExplorer {
             promoted: 0,
             started,
             filters: self.filters.len(),
+            waiting: None,
         })
     }
 
@@ -780,8 +804,7 @@ impl MonoExplorer {
             .collect();
         let median_depth = median(&mut depths).unwrap_or(1.0);
         let last_kf = KeyframeId::from_index(self.map.keyframes.len() - 1);
-        let distance = (centre(&pose) - centre(&self.map.rigid_pose(last_kf))).norm();
-        let is_keyframe = distance > self.config.keyframe_distance * median_depth
+        let is_keyframe = self.view_uncovered(&pose, last_kf, &tracked, median_depth)
             || tracked.len() < self.config.min_tracked_for_keyframe;
         let keyframe = is_keyframe.then(|| {
             let k = self.map.add_keyframe(frame, pose, measurements);
@@ -848,6 +871,57 @@ impl MonoExplorer {
             promoted,
             started,
             filters: self.filters.len(),
+            waiting: None,
+        })
+    }
+
+    /// Whether no keyframe covers the view of a camera at `pose` looking at a scene
+    /// `median_depth` away (thesis §3.3.3). Without `keyframe_rotation`: the camera moved more
+    /// than `keyframe_distance` of the scene depth from the last keyframe. With it, a keyframe
+    /// covers the view when the camera is within `keyframe_distance` of the scene depth of it
+    /// *and* within `keyframe_rotation` of its viewing direction, and the keyframes tried are
+    /// the last one and those measuring the `tracked` points: a camera turning on the spot
+    /// gets keyframes (their filters start the points of what comes into view), one browsing
+    /// a mapped place gets none where its old keyframes look.
+    fn view_uncovered(
+        &self,
+        pose: &Se3,
+        last: KeyframeId,
+        tracked: &[(PointId, Vector2<f64>)],
+        median_depth: f64,
+    ) -> bool {
+        let depth = median_depth.max(1e-9);
+        let distance = |k: KeyframeId| {
+            (centre(pose) - centre(&self.map.rigid_pose(k))).norm()
+                / (self.config.keyframe_distance * depth)
+        };
+        let Some(rotation) = self.config.keyframe_rotation else {
+            return distance(last) > 1.0;
+        };
+        let mut near: HashSet<KeyframeId> = HashSet::from([last]);
+        for (p, _) in tracked {
+            if let Some(point) = self.map.graph.point(*p) {
+                near.extend(point.observers().iter().copied());
+            }
+        }
+        // A keyframe covers the view only if this frame measures at least
+        // `keyframe_min_tracked_fraction` of the points it does: where the map thins out (its
+        // points leave the view, the tracks die) new points are needed although the place is
+        // known.
+        let wanted = |k: KeyframeId| {
+            self.map
+                .graph
+                .keyframe(k)
+                .map_or(0, |kf| kf.observations().len()) as f64
+                * self.config.keyframe_min_tracked_fraction
+        };
+        near.into_iter().all(|k| {
+            let turned = pose
+                .rotation()
+                .compose(&self.map.rigid_pose(k).rotation().inverse())
+                .log()
+                .norm();
+            distance(k).max(turned / rotation) > 1.0 || (tracked.len() as f64) < wanted(k)
         })
     }
 
@@ -1194,6 +1268,7 @@ fn centre(camera_from_world: &Se3) -> Vector3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pose_graph::rigid_from_similarity;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
@@ -1251,6 +1326,115 @@ mod tests {
             explorer.process(f, m).unwrap();
         }
         explorer
+    }
+
+    /// The live system's settings: covisible window, fixed older observers, outliers removed.
+    fn map_reuse(sigma: f64) -> ExplorationConfig {
+        ExplorationConfig {
+            sigma,
+            local_window: LocalWindow::Covisible,
+            fixed_observers: 10,
+            remove_outliers: true,
+            ..ExplorationConfig::default()
+        }
+    }
+
+    /// A track that jumps to another corner (15 px off its point from frame 60 on, across the
+    /// direction of motion, so no one point explains its measurements before and after): with
+    /// outliers removed, the map keeps only measurements of the point that agree with it (all
+    /// within 3σ of its projection); without, the keyframes keep both and contradict each
+    /// other.
+    #[test]
+    fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
+        let (_, mut frames) = sideways(3, 100, 0.5);
+        // A point seen from the start to the end.
+        let track = frames[0]
+            .iter()
+            .map(|(t, _)| *t)
+            .find(|t| frames[99].iter().any(|(u, _)| u == t))
+            .unwrap();
+        for m in frames.iter_mut().skip(60) {
+            for (t, z) in m.iter_mut() {
+                if *t == track {
+                    z.y += 15.0;
+                }
+            }
+        }
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        for (config, removed) in [
+            (map_reuse(0.5), true),
+            (ExplorationConfig::default(), false),
+        ] {
+            let config = ExplorationConfig {
+                sigma: 0.5,
+                ..config
+            };
+            let mut explorer = MonoExplorer::new(camera, config);
+            let mut point = None;
+            for (f, m) in frames.iter().enumerate() {
+                explorer.process(f, m).unwrap();
+                if f == 59 {
+                    point = explorer.active().get(&track).copied();
+                }
+            }
+            let point = point.expect("a map point by frame 59");
+            let graph = &explorer.map().graph;
+            let worst = graph.point(point).map_or(0.0, |pt| {
+                let y = graph.point_world(point).unwrap();
+                pt.observers()
+                    .iter()
+                    .map(|&k| {
+                        let z = graph.keyframe(k).unwrap().observations()[&point];
+                        let t = rigid_from_similarity(&graph.pose(k).unwrap());
+                        (CameraModel::project(&camera, &t.act(&y)).unwrap() - z).norm()
+                    })
+                    .fold(0.0, f64::max)
+            });
+            println!("outliers removed {removed}: worst residual {worst:.2} px");
+            if removed {
+                assert!(worst <= 1.5, "{worst} px");
+            } else {
+                assert!(worst > 5.0, "{worst} px");
+            }
+        }
+    }
+
+    /// With the keyframe criterion of coverage (`keyframe_rotation`), a camera that walks back
+    /// along a mapped path adds no keyframes: its view is covered by the keyframes of the way
+    /// out, which measure the points it tracks. By distance from the last keyframe alone it
+    /// adds as many on the way back as on the way out.
+    #[test]
+    fn a_camera_walking_back_over_its_map_adds_no_keyframes_where_keyframes_cover_its_view() {
+        let (_, out) = sideways(4, 80, 0.5);
+        // Back along the same poses (the same measurements in reverse order).
+        let frames: Vec<_> = out
+            .iter()
+            .chain(out.iter().rev().skip(1))
+            .cloned()
+            .collect();
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        let added_back = |config: ExplorationConfig| {
+            let mut explorer = MonoExplorer::new(camera, config);
+            let mut back = 0;
+            for (f, m) in frames.iter().enumerate() {
+                let o = explorer
+                    .process(f, m)
+                    .unwrap_or_else(|e| panic!("frame {f}: {e}"));
+                back += usize::from(f >= 85 && o.keyframe.is_some());
+            }
+            back
+        };
+        let by_distance = added_back(map_reuse(0.5));
+        let by_coverage = added_back(ExplorationConfig {
+            keyframe_rotation: Some(10f64.to_radians()),
+            ..map_reuse(0.5)
+        });
+        println!("keyframes on the way back: {by_distance} by distance, {by_coverage} by coverage");
+        assert!(by_distance >= 5, "{by_distance}");
+        assert!(
+            by_coverage <= 1,
+            "{by_coverage} (by distance: {by_distance})"
+        );
     }
 
     /// A correction that rescales the whole map by `a` (every keyframe `S ← S·diag(1/a)`, the
