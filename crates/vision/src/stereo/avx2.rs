@@ -1,0 +1,290 @@
+//! AVX2 kernels of the census matcher; `matcher.rs` holds their scalar references (same
+//! results, tested bit for bit). Every function here needs a CPU with AVX2
+//! (`crate::simd::avx2()`).
+
+use std::arch::x86_64::*;
+
+use super::matcher::{INVALID_COST, LANES, RowIo, Shape, Step, finish_left};
+
+/// Census byte planes of row `y` from the padded image (`c` replicated columns on either side,
+/// rows `stride` apart), 32 pixels per step (the last step overlapping the one before): for each
+/// neighbour, one signed byte compare against the centres (both with the top bit flipped, so
+/// the compare is unsigned) and `acc = 2·acc − mask`, the neighbours of a plane taken from its
+/// highest bit down, so bit `t` of plane `p` is neighbour `8p + t` in
+/// [`super::census_transform`]'s order. `reversed` stores pixel `x` at `w − 1 − x`.
+///
+/// # Safety
+/// AVX2; `w ≥ 32`, `planes·8 = (2c + 1)² − 1`, `out` holds `planes` planes `out_stride` apart
+/// (checked).
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+pub(super) unsafe fn census_row(
+    padded: &[u8],
+    stride: usize,
+    w: usize,
+    h: usize,
+    c: usize,
+    y: usize,
+    planes: usize,
+    out: &mut [u8],
+    out_stride: usize,
+    reversed: bool,
+) {
+    assert!(c <= 3 && planes * 8 == (2 * c + 1) * (2 * c + 1) - 1 && w >= 32 && y < h);
+    assert!(stride >= w + 2 * c && padded.len() >= (h - 1) * stride + w + 2 * c);
+    assert!(planes == 0 || (out.len() >= (planes - 1) * out_stride + w && out_stride >= w));
+    // Start of neighbour k's bytes relative to the pixel's column (rows clamped).
+    let mut nb = [0usize; 48];
+    let mut k = 0;
+    for dv in -(c as isize)..=c as isize {
+        let row = (y as isize + dv).clamp(0, h as isize - 1) as usize * stride;
+        for du in 0..=2 * c {
+            if du != c || dv != 0 {
+                nb[k] = row + du;
+                k += 1;
+            }
+        }
+    }
+    let last = w - 32;
+    // SAFETY: loads read padded[row + xs + du .. + 32] with du ≤ 2c and xs ≤ w − 32, inside
+    // the padded row; stores write out[p·out_stride + (xs or w − 32 − xs) .. + 32] inside plane
+    // p's first w bytes.
+    unsafe {
+        let flip = _mm256_set1_epi8(i8::MIN);
+        let rev = _mm256_setr_epi8(
+            15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0, 15, 14, 13, 12, 11, 10, 9, 8, 7,
+            6, 5, 4, 3, 2, 1, 0,
+        );
+        let p0 = padded.as_ptr();
+        let mut x = 0;
+        loop {
+            let xs = x.min(last);
+            let centre = _mm256_xor_si256(
+                _mm256_loadu_si256(p0.add(y * stride + xs + c) as *const __m256i),
+                flip,
+            );
+            for p in 0..planes {
+                let mut acc = _mm256_setzero_si256();
+                for t in (0..8).rev() {
+                    let v = _mm256_loadu_si256(p0.add(nb[8 * p + t] + xs) as *const __m256i);
+                    let lt = _mm256_cmpgt_epi8(centre, _mm256_xor_si256(v, flip));
+                    acc = _mm256_sub_epi8(_mm256_add_epi8(acc, acc), lt);
+                }
+                let o = out.as_mut_ptr().add(p * out_stride);
+                if reversed {
+                    let r =
+                        _mm256_permute4x64_epi64::<0b01_00_11_10>(_mm256_shuffle_epi8(acc, rev));
+                    _mm256_storeu_si256(o.add(w - 32 - xs) as *mut __m256i, r);
+                } else {
+                    _mm256_storeu_si256(o.add(xs) as *mut __m256i, acc);
+                }
+            }
+            if xs == last {
+                break;
+            }
+            x += 32;
+        }
+    }
+}
+
+/// Pixel costs of one row, `out[x·ndp + d] = popcount(L(x) ⊕ R(x − d))` for `d < ndp`
+/// (padding lanes `d ≥ nd` at [`INVALID_COST`]; the caller marks `d > x`), 32 disparities per
+/// step: per census plane, the right plane's 32 bytes (contiguous in `d`, the plane being
+/// reversed) XOR the left byte broadcast, byte popcounts by the `pshufb` nibble table, summed
+/// over the planes. A 16-lane tail is computed 32 wide and spills into the next pixel's lanes,
+/// which are written after it (`out` has 16 bytes of room past the row).
+///
+/// # Safety
+/// AVX2; sizes checked.
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+pub(super) unsafe fn costs(
+    lp: &[u8],
+    rp: &[u8],
+    rs: usize,
+    planes: usize,
+    w: usize,
+    nd: usize,
+    ndp: usize,
+    out: &mut [u8],
+) {
+    // SAFETY: forwarded (AVX2).
+    unsafe {
+        match planes {
+            6 => costs_n::<6>(lp, rp, rs, w, nd, ndp, out),
+            3 => costs_n::<3>(lp, rp, rs, w, nd, ndp, out),
+            1 => costs_n::<1>(lp, rp, rs, w, nd, ndp, out),
+            0 => costs_n::<0>(lp, rp, rs, w, nd, ndp, out),
+            _ => unreachable!("census planes: 0, 1, 3 or 6"),
+        }
+    }
+}
+
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn costs_n<const P: usize>(
+    lp: &[u8],
+    rp: &[u8],
+    rs: usize,
+    w: usize,
+    nd: usize,
+    ndp: usize,
+    out: &mut [u8],
+) {
+    assert!(ndp % LANES == 0 && nd <= ndp && ndp < nd + LANES);
+    assert!(lp.len() >= P * w && out.len() >= w * ndp + 16);
+    assert!(P == 0 || (rs >= w + ndp + 16 && rp.len() >= (P - 1) * rs + w + ndp + 16));
+    // Start of the last chunk, which holds the padding lanes.
+    let last = (ndp - 1) / 32 * 32;
+    let pad: [u8; 32] = std::array::from_fn(|j| if last + j >= nd { 0xff } else { 0 });
+    let padded = nd < ndp;
+    // SAFETY: loads read rp[p·rs + w − 1 − x + k .. + 32] with k ≤ ndp − 16, inside
+    // rp[p·rs .. p·rs + w + ndp + 16]; stores write out[x·ndp + k .. + 32] ⊂ out[.. w·ndp + 16].
+    unsafe {
+        let lut = _mm256_setr_epi8(
+            0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4, 0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2,
+            3, 3, 4,
+        );
+        let low = _mm256_set1_epi8(0x0f);
+        let invalid = _mm256_set1_epi8(INVALID_COST as i8);
+        for x in 0..w {
+            let lb: [__m256i; P] = std::array::from_fn(|p| _mm256_set1_epi8(lp[p * w + x] as i8));
+            let base = rp.as_ptr().add(w - 1 - x);
+            let o = out.as_mut_ptr().add(x * ndp);
+            let mut k = 0;
+            while k < ndp {
+                let mut acc = _mm256_setzero_si256();
+                for (p, &l) in lb.iter().enumerate() {
+                    let v = _mm256_xor_si256(
+                        _mm256_loadu_si256(base.add(p * rs + k) as *const __m256i),
+                        l,
+                    );
+                    let lo = _mm256_shuffle_epi8(lut, _mm256_and_si256(v, low));
+                    let hi =
+                        _mm256_shuffle_epi8(lut, _mm256_and_si256(_mm256_srli_epi16::<4>(v), low));
+                    acc = _mm256_add_epi8(acc, _mm256_add_epi8(lo, hi));
+                }
+                if padded && k == last {
+                    let pad = _mm256_loadu_si256(pad.as_ptr() as *const __m256i);
+                    acc = _mm256_blendv_epi8(acc, invalid, pad);
+                }
+                _mm256_storeu_si256(o.add(k) as *mut __m256i, acc);
+                k += 32;
+            }
+        }
+    }
+}
+
+/// `matcher::row_scalar` with vectors: one row pass, `LANES` disparities per vector.
+///
+/// # Safety
+/// AVX2; sizes checked (`RowIo::check`; every offset of a `Step` lies inside them).
+#[target_feature(enable = "avx2")]
+pub(super) unsafe fn row(io: RowIo) {
+    // SAFETY: forwarded (AVX2).
+    unsafe {
+        match io.shape.n() {
+            5 => row_n::<5>(io),
+            3 => row_n::<3>(io),
+            1 => row_n::<1>(io),
+            _ => row_n::<0>(io),
+        }
+    }
+}
+
+/// [`row`] with `N = 2s + 1` known (`0`: any).
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn row_n<const N: usize>(mut io: RowIo) {
+    io.check();
+    io.prepare();
+    let Shape { w, ndp, s, .. } = io.shape;
+    let n = if N > 0 { N } else { io.shape.n() };
+    assert!(n == io.shape.n());
+    let row_len = io.shape.row_len();
+    let mut a_slot = 2 * s % n;
+    // SAFETY: RowIo::check bounds every buffer; Step::new's offsets plus k + 16 ≤ ndp lie
+    // inside them (slots < n, columns < w, right_at + ndp ≤ RIGHT_WAYS·right_len).
+    unsafe {
+        let ld = |p: *const u16| _mm256_loadu_si256(p as *const __m256i);
+        let st = |p: *mut u16, v: __m256i| _mm256_storeu_si256(p as *mut __m256i, v);
+        let ld8 = |p: *const u8| _mm_loadu_si128(p as *const __m128i);
+        let (cp_add, cp_sub) = match io.v_rows {
+            Some((a, s)) => (a.as_ptr(), s.as_ptr()),
+            None => (std::ptr::null(), std::ptr::null()),
+        };
+        let vp = io.vsum.as_mut_ptr();
+        let bp = io.blocks.as_mut_ptr();
+        let sp = io.shifted.as_mut_ptr();
+        let (mp, lp) = (io.block.as_mut_ptr(), io.lanes.as_ptr());
+        let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
+        for x in 0..w {
+            let step = Step::new(&io, x, a_slot);
+            a_slot = if a_slot + 1 == n { 0 } else { a_slot + 1 };
+            debug_assert!(step.a_out.max(step.a_prev) + ndp <= n * ndp);
+            debug_assert!(step.h_at + ndp <= n * row_len && step.x_at + ndp <= row_len);
+            let mask = _mm256_set1_epi16((step.dmax + 1) as u16 as i16);
+            let mut key = _mm256_set1_epi32(-1);
+            let mut k = 0;
+            while k < ndp {
+                if io.do_h {
+                    if step.update_v {
+                        let at = step.v_col + k;
+                        let diff = _mm_sub_epi8(ld8(cp_add.add(at)), ld8(cp_sub.add(at)));
+                        let v = _mm256_add_epi16(ld(vp.add(at)), _mm256_cvtepi8_epi16(diff));
+                        st(vp.add(at), v);
+                    }
+                    let a = _mm256_sub_epi16(
+                        _mm256_add_epi16(ld(bp.add(step.a_prev + k)), ld(vp.add(step.v_add + k))),
+                        ld(vp.add(step.v_sub + k)),
+                    );
+                    st(bp.add(step.a_out + k), a);
+                    let mut h = a;
+                    for i in 0..n {
+                        h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
+                    }
+                    st(sp.add(step.h_at + k), h);
+                }
+                if io.do_m {
+                    let at = step.x_at + k;
+                    let mut m = ld(sp.add(at));
+                    for i in 1..n {
+                        m = _mm256_min_epu16(m, ld(sp.add(i * row_len + at)));
+                    }
+                    st(mp.add(k), m);
+                    let d = ld(lp.add(k));
+                    // Right winners: replace where m is strictly lower (the earlier, smaller
+                    // disparity kept on ties).
+                    let (rcost, rindex) = (rc.add(step.right_at + k), ri.add(step.right_at + k));
+                    let old = ld(rcost);
+                    let best = _mm256_min_epu16(old, m);
+                    let keep = _mm256_cmpeq_epi16(best, old);
+                    st(rcost, best);
+                    st(rindex, _mm256_blendv_epi8(d, ld(rindex), keep));
+                    if step.decide {
+                        let mm = if step.mask {
+                            // Lanes d > dmax get cost 0xffff: keys above every candidate's.
+                            _mm256_or_si256(m, _mm256_cmpeq_epi16(_mm256_max_epu16(d, mask), d))
+                        } else {
+                            m
+                        };
+                        // (d, cost) word pairs are the u32 keys (cost ≪ 16) | d.
+                        key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, mm));
+                        key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, mm));
+                    }
+                }
+                k += LANES;
+            }
+            if !io.do_m {
+                continue;
+            }
+            let k4 = _mm_min_epu32(
+                _mm256_castsi256_si128(key),
+                _mm256_extracti128_si256::<1>(key),
+            );
+            let k2 = _mm_min_epu32(k4, _mm_shuffle_epi32::<0b01_00_11_10>(k4));
+            let k1 = _mm_min_epu32(k2, _mm_shuffle_epi32::<0b10_11_00_01>(k2));
+            finish_left(&mut io, x, &step, _mm_cvtsi128_si32(k1) as u32);
+        }
+    }
+}
