@@ -87,8 +87,8 @@ pub(super) unsafe fn census_row(
     }
 }
 
-/// Pixel costs of one row, `out[x·ndp + d] = popcount(L(x) ⊕ R(x − d))` for `d < ndp`
-/// (padding lanes `d ≥ nd` at [`INVALID_COST`]; the caller marks `d > x`), 32 disparities per
+/// Pixel costs of one row, `out[x·ndp + d] = popcount(L(x) ⊕ R(x − d))` for `d ≤ x`, `d < nd`,
+/// [`INVALID_COST`] for the other `d < ndp` (past the left border, padding), 32 disparities per
 /// step: per census plane, the right plane's 32 bytes (contiguous in `d`, the plane being
 /// reversed) XOR the left byte broadcast, byte popcounts by the `pshufb` nibble table, summed
 /// over the planes. A 16-lane tail is computed 32 wide and spills into the next pixel's lanes,
@@ -134,9 +134,32 @@ unsafe fn costs_n<const P: usize>(
     assert!(ndp % LANES == 0 && nd <= ndp && ndp < nd + LANES);
     assert!(lp.len() >= P * w && out.len() >= w * ndp + 16);
     assert!(P == 0 || (rs >= w + ndp + 16 && rp.len() >= (P - 1) * rs + w + ndp + 16));
+    let b = nd.min(w);
+    // SAFETY: forwarded (AVX2, sizes checked).
+    unsafe {
+        costs_range::<P, true>(lp, rp, rs, w, nd, ndp, out, 0..b);
+        costs_range::<P, false>(lp, rp, rs, w, nd, ndp, out, b..w);
+    }
+}
+
+/// [`costs`] of the pixels `xs` (`BORDER`: `x < nd`, some disparities past the left border).
+///
+/// # Safety
+/// AVX2; the sizes checked by [`costs_n`].
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn costs_range<const P: usize, const BORDER: bool>(
+    lp: &[u8],
+    rp: &[u8],
+    rs: usize,
+    w: usize,
+    nd: usize,
+    ndp: usize,
+    out: &mut [u8],
+    xs: std::ops::Range<usize>,
+) {
     // Start of the last chunk, which holds the padding lanes.
     let last = (ndp - 1) / 32 * 32;
-    let pad: [u8; 32] = std::array::from_fn(|j| if last + j >= nd { 0xff } else { 0 });
     let padded = nd < ndp;
     // SAFETY: loads read rp[p·rs + w − 1 − x + k .. + 32] with k ≤ ndp − 16, inside
     // rp[p·rs .. p·rs + w + ndp + 16]; stores write out[x·ndp + k .. + 32] ⊂ out[.. w·ndp + 16].
@@ -147,7 +170,13 @@ unsafe fn costs_n<const P: usize>(
         );
         let low = _mm256_set1_epi8(0x0f);
         let invalid = _mm256_set1_epi8(INVALID_COST as i8);
-        for x in 0..w {
+        let byte_lanes = || {
+            _mm256_setr_epi8(
+                0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22,
+                23, 24, 25, 26, 27, 28, 29, 30, 31,
+            )
+        };
+        for x in xs {
             let lb: [__m256i; P] = std::array::from_fn(|p| _mm256_set1_epi8(lp[p * w + x] as i8));
             let base = rp.as_ptr().add(w - 1 - x);
             let o = out.as_mut_ptr().add(x * ndp);
@@ -165,8 +194,19 @@ unsafe fn costs_n<const P: usize>(
                     acc = _mm256_add_epi8(acc, _mm256_add_epi8(lo, hi));
                 }
                 if padded && k == last {
-                    let pad = _mm256_loadu_si256(pad.as_ptr() as *const __m256i);
-                    acc = _mm256_blendv_epi8(acc, invalid, pad);
+                    // Lanes d = last + j ≥ nd (nd − last − 1 ∈ −1 … 30).
+                    let t = _mm256_set1_epi8((nd - last) as i8 - 1);
+                    acc = _mm256_blendv_epi8(acc, invalid, _mm256_cmpgt_epi8(byte_lanes(), t));
+                }
+                // Lanes d = k + j > x reach past the left border.
+                let t = x as isize - k as isize;
+                if BORDER && t < 31 {
+                    let past = if t < 0 {
+                        _mm256_set1_epi8(-1)
+                    } else {
+                        _mm256_cmpgt_epi8(byte_lanes(), _mm256_set1_epi8(t as i8))
+                    };
+                    acc = _mm256_blendv_epi8(acc, invalid, past);
                 }
                 _mm256_storeu_si256(o.add(k) as *mut __m256i, acc);
                 k += 32;
@@ -204,7 +244,7 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
     let row_len = io.shape.row_len();
     let mut a_slot = 2 * s % n;
     // SAFETY: RowIo::check bounds every buffer; Step::new's offsets plus k + 16 ≤ ndp lie
-    // inside them (slots < n, columns < w, right_at + ndp ≤ RIGHT_WAYS·right_len).
+    // inside them (slots < n, columns < w, m_at ≤ ndp, right_at + ndp ≤ RIGHT_WAYS·right_len).
     unsafe {
         let ld = |p: *const u16| _mm256_loadu_si256(p as *const __m256i);
         let st = |p: *mut u16, v: __m256i| _mm256_storeu_si256(p as *mut __m256i, v);
@@ -218,40 +258,73 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
         let sp = io.shifted.as_mut_ptr();
         let (mp, lp) = (io.block.as_mut_ptr(), io.lanes.as_ptr());
         let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
+        // Column x's left key is finished at column x + 1 (its M long stored by then).
+        let mut pending: Option<(usize, Step, u32)> = None;
+        // The shift-minimum rows other than this row's (n = N known: the new row's H is
+        // taken from its register); with n unknown, all n rows.
+        let others = |slot: usize, stride: usize| -> [usize; 8] {
+            std::array::from_fn(|i| {
+                let j = slot + 1 + i;
+                (if j >= n { j - n } else { j }) * stride
+            })
+        };
+        let h_rows = others(io.h_slot, row_len);
         for x in 0..w {
             let step = Step::new(&io, x, a_slot);
+            // The block-sum columns other than the new one.
+            let a_cols = others(a_slot, ndp);
             a_slot = if a_slot + 1 == n { 0 } else { a_slot + 1 };
             debug_assert!(step.a_out.max(step.a_prev) + ndp <= n * ndp);
             debug_assert!(step.h_at + ndp <= n * row_len && step.x_at + ndp <= row_len);
+            debug_assert!(!step.update_v || step.v_add == step.v_col);
             let mask = _mm256_set1_epi16((step.dmax + 1) as u16 as i16);
             let mut key = _mm256_set1_epi32(-1);
             let mut k = 0;
             while k < ndp {
+                // H(y, x) of this chunk, when computed.
+                let mut h = _mm256_setzero_si256();
                 if io.do_h {
+                    let mut v_add = ld(vp.add(step.v_add + k));
                     if step.update_v {
                         let at = step.v_col + k;
                         let diff = _mm_sub_epi8(ld8(cp_add.add(at)), ld8(cp_sub.add(at)));
-                        let v = _mm256_add_epi16(ld(vp.add(at)), _mm256_cvtepi8_epi16(diff));
-                        st(vp.add(at), v);
+                        // (v_add = v_col here.)
+                        v_add = _mm256_add_epi16(ld(vp.add(at)), _mm256_cvtepi8_epi16(diff));
+                        st(vp.add(at), v_add);
                     }
                     let a = _mm256_sub_epi16(
-                        _mm256_add_epi16(ld(bp.add(step.a_prev + k)), ld(vp.add(step.v_add + k))),
+                        _mm256_add_epi16(ld(bp.add(step.a_prev + k)), v_add),
                         ld(vp.add(step.v_sub + k)),
                     );
                     st(bp.add(step.a_out + k), a);
-                    let mut h = a;
-                    for i in 0..n {
-                        h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
+                    h = a;
+                    if N > 0 {
+                        for &o in &a_cols[..N - 1] {
+                            h = _mm256_min_epu16(h, ld(bp.add(o + k)));
+                        }
+                    } else {
+                        for i in 0..n {
+                            h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
+                        }
                     }
                     st(sp.add(step.h_at + k), h);
                 }
                 if io.do_m {
                     let at = step.x_at + k;
-                    let mut m = ld(sp.add(at));
-                    for i in 1..n {
-                        m = _mm256_min_epu16(m, ld(sp.add(i * row_len + at)));
-                    }
-                    st(mp.add(k), m);
+                    let m = if N > 0 && io.do_h {
+                        let mut m = h;
+                        for &o in &h_rows[..N - 1] {
+                            m = _mm256_min_epu16(m, ld(sp.add(o + at)));
+                        }
+                        m
+                    } else {
+                        let mut m = ld(sp.add(at));
+                        for i in 1..n {
+                            m = _mm256_min_epu16(m, ld(sp.add(i * row_len + at)));
+                        }
+                        m
+                    };
+                    st(mp.add(step.m_at + k), m);
                     let d = ld(lp.add(k));
                     // Right winners: replace where m is strictly lower (the earlier, smaller
                     // disparity kept on ties).
@@ -284,7 +357,13 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
             );
             let k2 = _mm_min_epu32(k4, _mm_shuffle_epi32::<0b01_00_11_10>(k4));
             let k1 = _mm_min_epu32(k2, _mm_shuffle_epi32::<0b10_11_00_01>(k2));
-            finish_left(&mut io, x, &step, _mm_cvtsi128_si32(k1) as u32);
+            if let Some((px, pstep, pkey)) = pending {
+                finish_left(&mut io, px, &pstep, pkey);
+            }
+            pending = Some((x, step, _mm_cvtsi128_si32(k1) as u32));
+        }
+        if let Some((px, pstep, pkey)) = pending {
+            finish_left(&mut io, px, &pstep, pkey);
         }
     }
 }

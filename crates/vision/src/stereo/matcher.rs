@@ -227,7 +227,7 @@ struct Buffers {
     /// Ring of the `2s + 1` rows of horizontal shift minima `H` around the output row (row `j`,
     /// clamped, in slot `(j + s) mod (2s+1)`).
     shifted: Aligned<u16>,
-    /// `M` of the current pixel.
+    /// `M` of the current pixel (even columns in the first `ndp`, odd ones in the second).
     block: Aligned<u16>,
     /// `0, 1, …, ndp − 1`.
     lanes: Aligned<u16>,
@@ -236,7 +236,7 @@ struct Buffers {
     right_cost: Aligned<u16>,
     right_index: Aligned<u16>,
     /// Per column of the output row: the left key `(M ≪ 16) | d_L` (`u32::MAX`: no decision),
-    /// `M` at `d_L − 1` and `d_L + 1`, and the right winner `d_R`.
+    /// `M` at `d_L − 1` and `d_L + 1`, and the right winners (`d_R(x_r)` at `w − 1 − x_r`).
     left_key: Vec<u32>,
     below: Vec<u16>,
     above: Vec<u16>,
@@ -277,7 +277,7 @@ impl Buffers {
             vsum: Aligned::new(row),
             blocks: Aligned::new(n * ndp),
             shifted: Aligned::new(n * row),
-            block: Aligned::new(ndp),
+            block: Aligned::new(2 * ndp),
             lanes,
             right_cost: Aligned::new(RIGHT_WAYS * shape.right_len()),
             right_index: Aligned::new(RIGHT_WAYS * shape.right_len()),
@@ -525,14 +525,10 @@ fn cost_row<const AVX2: bool>(
             out,
         );
     }
-    // Disparities reaching past the left border.
-    for x in 0..w.min(nd) {
-        out[x * ndp + x + 1..x * ndp + nd].fill(INVALID_COST);
-    }
 }
 
-/// The scalar reference of `avx2::costs`: `C(x, d)` for `d < ndp` (padding lanes at
-/// [`INVALID_COST`]; the caller marks `d > x`).
+/// The scalar reference of `avx2::costs`: `C(x, d)` for `d ≤ x`, `d < nd`; [`INVALID_COST`]
+/// for the other `d < ndp` (past the left border, padding).
 #[allow(clippy::too_many_arguments)]
 fn costs_scalar(
     lp: &[u8],
@@ -548,7 +544,7 @@ fn costs_scalar(
         let base = w - 1 - x;
         let o = &mut out[x * ndp..(x + 1) * ndp];
         for (d, c) in o.iter_mut().enumerate() {
-            *c = if d >= nd {
+            *c = if d >= nd || d > x {
                 INVALID_COST
             } else {
                 (0..planes)
@@ -594,7 +590,7 @@ impl RowIo<'_> {
         if let Some((a, s)) = self.v_rows {
             assert!(a.len() >= row && s.len() >= row);
         }
-        assert!(self.block.len() >= ndp && self.lanes.len() >= ndp);
+        assert!(self.block.len() >= 2 * ndp && self.lanes.len() >= ndp);
         let right = RIGHT_WAYS * sh.right_len();
         assert!(self.right_cost.len() >= right && self.right_index.len() >= right);
         assert!(self.left_key.len() >= sh.w && self.below.len() >= sh.w);
@@ -662,9 +658,12 @@ pub(super) struct Step {
     pub a_out: usize,
     pub v_add: usize,
     pub v_sub: usize,
-    /// Where `H(y, x)` goes in the shift-minimum ring; `M(y − s, x)` reads its rows at `x_at`.
+    /// Where `H(y, x)` goes in the shift-minimum ring; `M(y − s, x)` reads its rows at `x_at`
+    /// and goes to `block[m_at..]` (alternating halves, so that the left winner's neighbours
+    /// are read a column later, from stores long done).
     pub h_at: usize,
     pub x_at: usize,
+    pub m_at: usize,
     /// The left key over `d ≤ dmax` (`mask`: `dmax < nd − 1`; else over all `ndp` lanes, the
     /// padding never winning).
     pub decide: bool,
@@ -700,6 +699,7 @@ impl Step {
             v_sub,
             h_at: io.h_slot * io.shape.row_len() + x * ndp,
             x_at: x * ndp,
+            m_at: (x & 1) * ndp,
             decide,
             dmax,
             mask: dmax + 1 < nd,
@@ -747,26 +747,27 @@ pub(super) fn row_scalar(mut io: RowIo) {
         if !io.do_m {
             continue;
         }
-        for d in 0..ndp {
-            io.block[d] = (0..n)
+        let block = &mut io.block[st.m_at..st.m_at + ndp];
+        for (d, m) in block.iter_mut().enumerate() {
+            *m = (0..n)
                 .map(|i| io.shifted[i * row_len + st.x_at + d])
                 .min()
                 .unwrap();
         }
-        for d in 0..ndp {
+        for (d, &m) in block.iter().enumerate() {
             let (c, i) = (
                 &mut io.right_cost[st.right_at + d],
                 &mut io.right_index[st.right_at + d],
             );
-            if io.block[d] < *c {
-                *c = io.block[d];
+            if m < *c {
+                *c = m;
                 *i = d as u16;
             }
         }
         let key = if st.decide {
             let top = if st.mask { st.dmax + 1 } else { ndp };
             (0..top)
-                .map(|d| ((io.block[d] as u32) << 16) | d as u32)
+                .map(|d| ((block[d] as u32) << 16) | d as u32)
                 .min()
                 .unwrap()
         } else {
@@ -785,10 +786,11 @@ pub(super) fn finish_left(io: &mut RowIo, x: usize, st: &Step, key: u32) {
         return;
     }
     let ndp = io.shape.ndp;
+    let block = &io.block[st.m_at..st.m_at + ndp];
     let bd = (key & 0xffff) as usize;
-    io.below[x] = io.block[bd.saturating_sub(1)];
-    io.above[x] = io.block[(bd + 1).min(ndp - 1)];
-    if io.uniqueness <= 0.0 || unique(io.block, key, st.dmax, io.uniqueness) {
+    io.below[x] = block[bd.saturating_sub(1)];
+    io.above[x] = block[(bd + 1).min(ndp - 1)];
+    if io.uniqueness <= 0.0 || unique(block, key, st.dmax, io.uniqueness) {
         io.left_key[x] = key;
     }
 }
@@ -806,25 +808,27 @@ fn unique(block: &[u16], key: u32, dmax: usize, uniqueness: f32) -> bool {
     second == u16::MAX || (best as f32) * (1.0 + uniqueness) < second as f32
 }
 
-/// The right winners of a row: per `x_r`, the lowest `(cost, d)` over the [`RIGHT_WAYS`] ways
-/// (each holding its lowest cost with the smallest `d`).
+/// The right winners of a row, `best[w − 1 − x_r] = d_R(x_r)`: the lowest `(cost, d)` over the
+/// [`RIGHT_WAYS`] ways (each holding its lowest cost with the smallest `d`).
 #[inline(always)]
 fn merge_right(shape: &Shape, cost: &[u16], index: &[u16], best: &mut [u16]) {
     let (w, len) = (shape.w, shape.right_len());
-    let key = |k: usize, i: usize| ((cost[k * len + i] as u32) << 16) | index[k * len + i] as u32;
-    for (xr, b) in best[..w].iter_mut().enumerate() {
-        let i = w - 1 - xr;
-        let mut m = key(0, i);
-        for k in 1..RIGHT_WAYS {
-            m = m.min(key(k, i));
+    let ways: [(&[u16], &[u16]); RIGHT_WAYS] =
+        std::array::from_fn(|k| (&cost[k * len..k * len + w], &index[k * len..k * len + w]));
+    for (i, b) in best[..w].iter_mut().enumerate() {
+        let mut m = u32::MAX;
+        for (c, d) in ways {
+            m = m.min(((c[i] as u32) << 16) | d[i] as u32);
         }
         *b = m as u16;
     }
 }
 
 /// The disparities of one output row from the left keys: the parabolic sub-pixel disparity
-/// through the costs at `d_L − 1, d_L, d_L + 1` (when both neighbours are candidates), then the
-/// left-right check against `d_R(x − d_L)`.
+/// through the costs at `d_L − 1, d_L, d_L + 1` (when both neighbours are candidates and the
+/// parabola opens upwards), then the left-right check against `d_R(x − d_L)` (`right_best` in
+/// reversed order). Written without branches (the outcomes are data-dependent); the same
+/// floating-point operations as the straightforward version.
 #[inline(always)]
 fn decide_row(
     shape: &Shape,
@@ -833,28 +837,21 @@ fn decide_row(
     dst: &mut [f32],
     params: &StereoParams,
 ) {
-    let Shape { nd, r, .. } = *shape;
+    let Shape { w, nd, r, .. } = *shape;
+    let check = params.max_lr_difference >= 0.0;
     for (x, o) in dst.iter_mut().enumerate() {
         let key = left_key[x];
-        *o = f32::NAN;
-        if key == u32::MAX {
-            continue;
-        }
+        let valid = key != u32::MAX;
         let (best, bd) = ((key >> 16) as u16, (key & 0xffff) as usize);
-        let dmax = (x - r).min(nd - 1);
-        let mut dsub = bd as f32;
-        if bd > 0 && bd < dmax {
-            let (c0, c1, c2) = (below[x] as f32, best as f32, above[x] as f32);
-            let den = c0 - 2.0 * c1 + c2;
-            if den > 0.0 {
-                dsub += ((c0 - c2) / (2.0 * den)).clamp(-0.5, 0.5);
-            }
-        }
-        if params.max_lr_difference >= 0.0
-            && (right_best[x - bd] as f32 - bd as f32).abs() > params.max_lr_difference
-        {
-            continue;
-        }
-        *o = dsub;
+        let dmax = x.saturating_sub(r).min(nd - 1);
+        let (c0, c1, c2) = (below[x] as f32, best as f32, above[x] as f32);
+        let den = c0 - 2.0 * c1 + c2;
+        let q = ((c0 - c2) / (2.0 * den)).clamp(-0.5, 0.5);
+        let fit = bd > 0 && bd < dmax && den > 0.0;
+        let dsub = if fit { bd as f32 + q } else { bd as f32 };
+        // x_r = x − d_L at w − 1 − x_r (any index when invalid).
+        let rb = right_best[if valid { w - 1 - x + bd } else { 0 }] as f32;
+        let lr_ok = !check || (rb - bd as f32).abs() <= params.max_lr_difference;
+        *o = if valid && lr_ok { dsub } else { f32::NAN };
     }
 }
