@@ -4,7 +4,7 @@
 
 use std::arch::x86_64::*;
 
-use super::matcher::{INVALID_COST, LANES, RowIo, Shape, Step, finish_left};
+use super::matcher::{DecideIo, INVALID_COST, LANES, RowIo, Shape, Step, decide_pixel};
 
 /// Census byte planes of row `y` from the padded image (`c` replicated columns on either side,
 /// rows `stride` apart), 32 pixels per step (the last step overlapping the one before): for each
@@ -244,7 +244,7 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
     let row_len = io.shape.row_len();
     let mut a_slot = 2 * s % n;
     // SAFETY: RowIo::check bounds every buffer; Step::new's offsets plus k + 16 ≤ ndp lie
-    // inside them (slots < n, columns < w, m_at ≤ ndp, right_at + ndp ≤ RIGHT_WAYS·right_len).
+    // inside them (slots < n, columns < w, right_at + ndp ≤ RIGHT_WAYS·right_len).
     unsafe {
         let ld = |p: *const u16| _mm256_loadu_si256(p as *const __m256i);
         let st = |p: *mut u16, v: __m256i| _mm256_storeu_si256(p as *mut __m256i, v);
@@ -258,8 +258,6 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
         let sp = io.shifted.as_mut_ptr();
         let (mp, lp) = (io.block.as_mut_ptr(), io.lanes.as_ptr());
         let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
-        // Column x's left key is finished at column x + 1 (its M long stored by then).
-        let mut pending: Option<(usize, Step, u32)> = None;
         // The shift-minimum rows other than this row's (n = N known: the new row's H is
         // taken from its register); with n unknown, all n rows.
         let others = |slot: usize, stride: usize| -> [usize; 8] {
@@ -324,7 +322,7 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
                         }
                         m
                     };
-                    st(mp.add(step.m_at + k), m);
+                    st(mp.add(at), m);
                     let d = ld(lp.add(k));
                     // Right winners: replace where m is strictly lower (the earlier, smaller
                     // disparity kept on ties).
@@ -357,13 +355,108 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
             );
             let k2 = _mm_min_epu32(k4, _mm_shuffle_epi32::<0b01_00_11_10>(k4));
             let k1 = _mm_min_epu32(k2, _mm_shuffle_epi32::<0b10_11_00_01>(k2));
-            if let Some((px, pstep, pkey)) = pending {
-                finish_left(&mut io, px, &pstep, pkey);
+            // (u32::MAX when there is no decision: no lane competed.)
+            *io.left_key.get_unchecked_mut(x) = _mm_cvtsi128_si32(k1) as u32;
+        }
+    }
+}
+
+/// `matcher::decide_row` eight pixels per step: the keys' disparities and costs, the costs
+/// beside the winner and the right winners gathered, the parabola and the left-right check
+/// as masks, the same floating-point operations in the same order; the last `w mod 8` pixels
+/// through `matcher::decide_pixel`.
+///
+/// # Safety
+/// AVX2; sizes checked.
+#[target_feature(enable = "avx2")]
+pub(super) unsafe fn decide_row(io: DecideIo) {
+    let Shape { w, nd, ndp, r, .. } = io.shape;
+    assert!(io.left_key.len() >= w && io.dst.len() >= w);
+    // The gathers read 32 bits at each 16-bit element.
+    assert!(io.block.len() >= w * ndp + 1 && io.right_best.len() >= w + 1);
+    assert!(w * ndp < i32::MAX as usize / 2);
+    let w8 = w / 8 * 8;
+    // SAFETY: gathered indices: x·ndp + max(d_L − 1, 0) and x·ndp + min(d_L + 1, ndp − 1)
+    // (d_L = 0 where there is no key) < w·ndp, read with one element to spare;
+    // w − 1 − x + d_L ≤ w − 1 (d_L ≤ x − r) likewise; loads and stores at x + 8 ≤ w.
+    unsafe {
+        let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let none = _mm256_set1_epi32(-1);
+        let low = _mm256_set1_epi32(0xffff);
+        let one = _mm256_set1_epi32(1);
+        let zero = _mm256_setzero_si256();
+        let nan = _mm256_set1_ps(f32::NAN);
+        let (half, minus_half, two) = (
+            _mm256_set1_ps(0.5),
+            _mm256_set1_ps(-0.5),
+            _mm256_set1_ps(2.0),
+        );
+        let check = io.max_lr_difference >= 0.0;
+        let max_lr = _mm256_set1_ps(io.max_lr_difference);
+        let sign = _mm256_set1_ps(-0.0);
+        let block = io.block.as_ptr() as *const i32;
+        let right = io.right_best.as_ptr() as *const i32;
+        let mut x = 0;
+        while x < w8 {
+            let key = _mm256_loadu_si256(io.left_key.as_ptr().add(x) as *const __m256i);
+            let valid = _mm256_xor_si256(_mm256_cmpeq_epi32(key, none), none);
+            let bd = _mm256_and_si256(_mm256_and_si256(key, low), valid);
+            let best = _mm256_srli_epi32::<16>(key);
+            let xs = _mm256_add_epi32(_mm256_set1_epi32(x as i32), lanes);
+            let dmax = _mm256_min_epi32(
+                _mm256_max_epi32(_mm256_sub_epi32(xs, _mm256_set1_epi32(r as i32)), zero),
+                _mm256_set1_epi32(nd as i32 - 1),
+            );
+            let at = _mm256_mullo_epi32(xs, _mm256_set1_epi32(ndp as i32));
+            let lo = _mm256_add_epi32(at, _mm256_max_epi32(_mm256_sub_epi32(bd, one), zero));
+            let hi = _mm256_add_epi32(
+                at,
+                _mm256_min_epi32(_mm256_add_epi32(bd, one), _mm256_set1_epi32(ndp as i32 - 1)),
+            );
+            let c0 = _mm256_cvtepi32_ps(_mm256_and_si256(
+                _mm256_i32gather_epi32::<2>(block, lo),
+                low,
+            ));
+            let c2 = _mm256_cvtepi32_ps(_mm256_and_si256(
+                _mm256_i32gather_epi32::<2>(block, hi),
+                low,
+            ));
+            let c1 = _mm256_cvtepi32_ps(best);
+            let bdf = _mm256_cvtepi32_ps(bd);
+            let den = _mm256_add_ps(_mm256_sub_ps(c0, _mm256_mul_ps(two, c1)), c2);
+            let q = _mm256_div_ps(_mm256_sub_ps(c0, c2), _mm256_mul_ps(two, den));
+            // clamp(−0.5, 0.5) (q is finite where it is used).
+            let q = _mm256_max_ps(_mm256_min_ps(q, half), minus_half);
+            let fit = _mm256_and_si256(
+                _mm256_and_si256(_mm256_cmpgt_epi32(bd, zero), _mm256_cmpgt_epi32(dmax, bd)),
+                _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(den, _mm256_setzero_ps())),
+            );
+            let dsub = _mm256_blendv_ps(bdf, _mm256_add_ps(bdf, q), _mm256_castsi256_ps(fit));
+            let mut ok = valid;
+            if check {
+                let ri =
+                    _mm256_add_epi32(_mm256_sub_epi32(_mm256_set1_epi32(w as i32 - 1), xs), bd);
+                let rb = _mm256_cvtepi32_ps(_mm256_and_si256(
+                    _mm256_i32gather_epi32::<2>(right, ri),
+                    low,
+                ));
+                let diff = _mm256_andnot_ps(sign, _mm256_sub_ps(rb, bdf));
+                let within = _mm256_cmp_ps::<_CMP_LE_OQ>(diff, max_lr);
+                ok = _mm256_and_si256(ok, _mm256_castps_si256(within));
             }
-            pending = Some((x, step, _mm_cvtsi128_si32(k1) as u32));
+            let out = _mm256_blendv_ps(nan, dsub, _mm256_castsi256_ps(ok));
+            _mm256_storeu_ps(io.dst.as_mut_ptr().add(x), out);
+            x += 8;
         }
-        if let Some((px, pstep, pkey)) = pending {
-            finish_left(&mut io, px, &pstep, pkey);
-        }
+    }
+    for x in w8..w {
+        io.dst[x] = decide_pixel(
+            &io.shape,
+            x,
+            io.left_key[x],
+            io.block,
+            io.right_best,
+            io.max_lr_difference,
+        );
     }
 }

@@ -227,7 +227,7 @@ struct Buffers {
     /// Ring of the `2s + 1` rows of horizontal shift minima `H` around the output row (row `j`,
     /// clamped, in slot `(j + s) mod (2s+1)`).
     shifted: Aligned<u16>,
-    /// `M` of the current pixel (even columns in the first `ndp`, odd ones in the second).
+    /// `M` of the output row (`[x][d]`; the sub-pixel fit and the uniqueness test read it).
     block: Aligned<u16>,
     /// `0, 1, …, ndp − 1`.
     lanes: Aligned<u16>,
@@ -235,11 +235,10 @@ struct Buffers {
     /// [`Shape::right_len`].
     right_cost: Aligned<u16>,
     right_index: Aligned<u16>,
-    /// Per column of the output row: the left key `(M ≪ 16) | d_L` (`u32::MAX`: no decision),
-    /// `M` at `d_L − 1` and `d_L + 1`, and the right winners (`d_R(x_r)` at `w − 1 − x_r`).
+    /// Per column of the output row: the left key `(M ≪ 16) | d_L` (`u32::MAX`: no decision)
+    /// and the right winners (`d_R(x_r)` at `w − 1 − x_r`; one element of room at the end for
+    /// the 32-bit gathers reading them).
     left_key: Vec<u32>,
-    below: Vec<u16>,
-    above: Vec<u16>,
     right_best: Vec<u16>,
     /// Disparities before the median.
     raw: Image<f32>,
@@ -277,14 +276,12 @@ impl Buffers {
             vsum: Aligned::new(row),
             blocks: Aligned::new(n * ndp),
             shifted: Aligned::new(n * row),
-            block: Aligned::new(2 * ndp),
+            block: Aligned::new(row + 2),
             lanes,
             right_cost: Aligned::new(RIGHT_WAYS * shape.right_len()),
             right_index: Aligned::new(RIGHT_WAYS * shape.right_len()),
             left_key: vec![u32::MAX; w],
-            below: vec![0; w],
-            above: vec![0; w],
-            right_best: vec![0; w],
+            right_best: vec![0; w + 1],
             raw: Image::filled(w, h, f32::NAN),
             median: MedianScratch::default(),
         }
@@ -387,9 +384,6 @@ fn run<const AVX2: bool>(
             right_cost: b.right_cost.get_mut(),
             right_index: b.right_index.get_mut(),
             left_key: &mut b.left_key,
-            below: &mut b.below,
-            above: &mut b.above,
-            uniqueness: params.uniqueness,
         };
         #[cfg(target_arch = "x86_64")]
         if AVX2 {
@@ -420,17 +414,35 @@ fn run<const AVX2: bool>(
         let Buffers {
             raw,
             left_key,
-            below,
-            above,
+            block,
             right_best,
             ..
         } = b;
+        if params.uniqueness > 0.0 {
+            uniqueness_test(&shape, left_key, block.get(), params.uniqueness);
+        }
         let dst = if params.median_filter {
             raw.row_mut(y)
         } else {
             out.row_mut(y)
         };
-        decide_row(&shape, left_key, [below, above, right_best], dst, params);
+        let io = DecideIo {
+            shape,
+            left_key,
+            block: block.get(),
+            right_best,
+            max_lr_difference: params.max_lr_difference,
+            dst,
+        };
+        #[cfg(target_arch = "x86_64")]
+        if AVX2 {
+            // SAFETY: AVX2 instances run after `simd::avx2()`; sizes checked inside.
+            unsafe { super::avx2::decide_row(io) };
+        } else {
+            decide_row(io);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        decide_row(io);
     }
     if params.median_filter {
         median3_valid_into(&b.raw, &mut b.median, out);
@@ -569,14 +581,12 @@ pub(super) struct RowIo<'a> {
     pub shifted: &'a mut [u16],
     /// The shift-minimum ring's slot of this row's `H`.
     pub h_slot: usize,
+    /// `M` of the output row.
     pub block: &'a mut [u16],
     pub lanes: &'a [u16],
     pub right_cost: &'a mut [u16],
     pub right_index: &'a mut [u16],
     pub left_key: &'a mut [u32],
-    pub below: &'a mut [u16],
-    pub above: &'a mut [u16],
-    pub uniqueness: f32,
 }
 
 impl RowIo<'_> {
@@ -590,11 +600,10 @@ impl RowIo<'_> {
         if let Some((a, s)) = self.v_rows {
             assert!(a.len() >= row && s.len() >= row);
         }
-        assert!(self.block.len() >= 2 * ndp && self.lanes.len() >= ndp);
+        assert!(self.block.len() >= row && self.lanes.len() >= ndp);
         let right = RIGHT_WAYS * sh.right_len();
         assert!(self.right_cost.len() >= right && self.right_index.len() >= right);
-        assert!(self.left_key.len() >= sh.w && self.below.len() >= sh.w);
-        assert!(self.above.len() >= sh.w);
+        assert!(self.left_key.len() >= sh.w);
     }
 
     /// Before the column loop: the vertical sums of columns `0 … v_prefix − 1` (the later ones
@@ -659,11 +668,9 @@ pub(super) struct Step {
     pub v_add: usize,
     pub v_sub: usize,
     /// Where `H(y, x)` goes in the shift-minimum ring; `M(y − s, x)` reads its rows at `x_at`
-    /// and goes to `block[m_at..]` (alternating halves, so that the left winner's neighbours
-    /// are read a column later, from stores long done).
+    /// and goes to `block[x_at..]`.
     pub h_at: usize,
     pub x_at: usize,
-    pub m_at: usize,
     /// The left key over `d ≤ dmax` (`mask`: `dmax < nd − 1`; else over all `ndp` lanes, the
     /// padding never winning).
     pub decide: bool,
@@ -699,7 +706,6 @@ impl Step {
             v_sub,
             h_at: io.h_slot * io.shape.row_len() + x * ndp,
             x_at: x * ndp,
-            m_at: (x & 1) * ndp,
             decide,
             dmax,
             mask: dmax + 1 < nd,
@@ -747,7 +753,7 @@ pub(super) fn row_scalar(mut io: RowIo) {
         if !io.do_m {
             continue;
         }
-        let block = &mut io.block[st.m_at..st.m_at + ndp];
+        let block = &mut io.block[st.x_at..st.x_at + ndp];
         for (d, m) in block.iter_mut().enumerate() {
             *m = (0..n)
                 .map(|i| io.shifted[i * row_len + st.x_at + d])
@@ -764,7 +770,7 @@ pub(super) fn row_scalar(mut io: RowIo) {
                 *i = d as u16;
             }
         }
-        let key = if st.decide {
+        io.left_key[x] = if st.decide {
             let top = if st.mask { st.dmax + 1 } else { ndp };
             (0..top)
                 .map(|d| ((block[d] as u32) << 16) | d as u32)
@@ -773,39 +779,29 @@ pub(super) fn row_scalar(mut io: RowIo) {
         } else {
             u32::MAX
         };
-        finish_left(&mut io, x, &st, key);
     }
 }
 
-/// Stores column `x`'s left key and the costs beside its winner (`u32::MAX` if there is no
-/// decision or the uniqueness test fails).
-#[inline(always)]
-pub(super) fn finish_left(io: &mut RowIo, x: usize, st: &Step, key: u32) {
-    io.left_key[x] = u32::MAX;
-    if !st.decide {
-        return;
-    }
-    let ndp = io.shape.ndp;
-    let block = &io.block[st.m_at..st.m_at + ndp];
-    let bd = (key & 0xffff) as usize;
-    io.below[x] = block[bd.saturating_sub(1)];
-    io.above[x] = block[(bd + 1).min(ndp - 1)];
-    if io.uniqueness <= 0.0 || unique(block, key, st.dmax, io.uniqueness) {
-        io.left_key[x] = key;
-    }
-}
-
-/// The uniqueness test of the left winner (its key `(cost ≪ 16) | d`): the best cost `C₂`
-/// outside `d ± 1` must exceed `C₁·(1 + uniqueness)`.
-fn unique(block: &[u16], key: u32, dmax: usize, uniqueness: f32) -> bool {
-    let (best, bd) = ((key >> 16) as u16, (key & 0xffff) as usize);
-    let mut second = u16::MAX;
-    for (d, &c) in block.iter().enumerate().take(dmax + 1) {
-        if (d + 1 < bd || d > bd + 1) && c < second {
-            second = c;
+/// The uniqueness test of the row's left winners (keys `(C₁ ≪ 16) | d`): the best cost `C₂`
+/// outside `d ± 1` must exceed `C₁·(1 + uniqueness)`, else the key becomes `u32::MAX`.
+fn uniqueness_test(shape: &Shape, left_key: &mut [u32], block: &[u16], uniqueness: f32) {
+    let Shape { nd, ndp, r, .. } = *shape;
+    for (x, key) in left_key.iter_mut().enumerate() {
+        if *key == u32::MAX {
+            continue;
+        }
+        let (best, bd) = ((*key >> 16) as u16, (*key & 0xffff) as usize);
+        let dmax = (x - r).min(nd - 1);
+        let mut second = u16::MAX;
+        for (d, &c) in block[x * ndp..].iter().enumerate().take(dmax + 1) {
+            if (d + 1 < bd || d > bd + 1) && c < second {
+                second = c;
+            }
+        }
+        if second != u16::MAX && (best as f32) * (1.0 + uniqueness) >= second as f32 {
+            *key = u32::MAX;
         }
     }
-    second == u16::MAX || (best as f32) * (1.0 + uniqueness) < second as f32
 }
 
 /// The right winners of a row, `best[w − 1 − x_r] = d_R(x_r)`: the lowest `(cost, d)` over the
@@ -824,34 +820,67 @@ fn merge_right(shape: &Shape, cost: &[u16], index: &[u16], best: &mut [u16]) {
     }
 }
 
+/// The buffers of [`decide_row`].
+pub(super) struct DecideIo<'a> {
+    pub shape: Shape,
+    pub left_key: &'a [u32],
+    /// `M` of the row (`[x][d]`).
+    pub block: &'a [u16],
+    /// `d_R(x_r)` at `w − 1 − x_r`.
+    pub right_best: &'a [u16],
+    pub max_lr_difference: f32,
+    pub dst: &'a mut [f32],
+}
+
 /// The disparities of one output row from the left keys: the parabolic sub-pixel disparity
 /// through the costs at `d_L − 1, d_L, d_L + 1` (when both neighbours are candidates and the
-/// parabola opens upwards), then the left-right check against `d_R(x − d_L)` (`right_best` in
-/// reversed order). Written without branches (the outcomes are data-dependent); the same
-/// floating-point operations as the straightforward version.
-#[inline(always)]
-fn decide_row(
-    shape: &Shape,
-    left_key: &[u32],
-    [below, above, right_best]: [&[u16]; 3],
-    dst: &mut [f32],
-    params: &StereoParams,
-) {
-    let Shape { w, nd, r, .. } = *shape;
-    let check = params.max_lr_difference >= 0.0;
-    for (x, o) in dst.iter_mut().enumerate() {
-        let key = left_key[x];
-        let valid = key != u32::MAX;
-        let (best, bd) = ((key >> 16) as u16, (key & 0xffff) as usize);
-        let dmax = x.saturating_sub(r).min(nd - 1);
-        let (c0, c1, c2) = (below[x] as f32, best as f32, above[x] as f32);
-        let den = c0 - 2.0 * c1 + c2;
-        let q = ((c0 - c2) / (2.0 * den)).clamp(-0.5, 0.5);
-        let fit = bd > 0 && bd < dmax && den > 0.0;
-        let dsub = if fit { bd as f32 + q } else { bd as f32 };
-        // x_r = x − d_L at w − 1 − x_r (any index when invalid).
-        let rb = right_best[if valid { w - 1 - x + bd } else { 0 }] as f32;
-        let lr_ok = !check || (rb - bd as f32).abs() <= params.max_lr_difference;
-        *o = if valid && lr_ok { dsub } else { f32::NAN };
+/// parabola opens upwards), then the left-right check against `d_R(x − d_L)`; `NaN` where
+/// there is no key or the check fails. `avx2::decide_row` does eight pixels per step with the
+/// same floating-point operations.
+pub(super) fn decide_row(io: DecideIo) {
+    for (x, o) in io.dst.iter_mut().enumerate() {
+        let key = io.left_key[x];
+        *o = decide_pixel(
+            &io.shape,
+            x,
+            key,
+            io.block,
+            io.right_best,
+            io.max_lr_difference,
+        );
     }
+}
+
+/// One pixel of [`decide_row`].
+#[inline(always)]
+pub(super) fn decide_pixel(
+    shape: &Shape,
+    x: usize,
+    key: u32,
+    block: &[u16],
+    right_best: &[u16],
+    max_lr_difference: f32,
+) -> f32 {
+    let Shape { w, nd, ndp, r, .. } = *shape;
+    if key == u32::MAX {
+        return f32::NAN;
+    }
+    let (best, bd) = ((key >> 16) as u16, (key & 0xffff) as usize);
+    let dmax = (x - r).min(nd - 1);
+    let mut dsub = bd as f32;
+    if bd > 0 && bd < dmax {
+        let m = &block[x * ndp..(x + 1) * ndp];
+        let (c0, c1, c2) = (m[bd - 1] as f32, best as f32, m[bd + 1] as f32);
+        let den = c0 - 2.0 * c1 + c2;
+        if den > 0.0 {
+            dsub += ((c0 - c2) / (2.0 * den)).clamp(-0.5, 0.5);
+        }
+    }
+    // x_r = x − d_L is at w − 1 − x_r.
+    if max_lr_difference >= 0.0
+        && (right_best[w - 1 - x + bd] as f32 - bd as f32).abs() > max_lr_difference
+    {
+        return f32::NAN;
+    }
+    dsub
 }
