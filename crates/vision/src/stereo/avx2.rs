@@ -176,6 +176,44 @@ unsafe fn costs_range<const P: usize, const BORDER: bool>(
                 23, 24, 25, 26, 27, 28, 29, 30, 31,
             )
         };
+        let mut xs = xs;
+        if ndp == 16 && !BORDER {
+            // 16 disparities: two pixels per vector (x in the low half, x + 1 in the high).
+            let pair = _mm256_setr_epi8(
+                0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1,
+                1, 1, 1, 1,
+            );
+            // Padding lanes of both halves: d = j mod 16 ≥ nd.
+            let pad = _mm256_cmpgt_epi8(
+                _mm256_and_si256(byte_lanes(), _mm256_set1_epi8(15)),
+                _mm256_set1_epi8(nd as i8 - 1),
+            );
+            while xs.start + 2 <= xs.end {
+                let x = xs.start;
+                let lb: [__m256i; P] = std::array::from_fn(|p| {
+                    let two = (lp.as_ptr().add(p * w + x) as *const u16).read_unaligned();
+                    _mm256_shuffle_epi8(_mm256_set1_epi16(two as i16), pair)
+                });
+                let base = rp.as_ptr().add(w - 2 - x);
+                let mut acc = _mm256_setzero_si256();
+                for (p, &l) in lb.iter().enumerate() {
+                    let q = base.add(p * rs);
+                    let v = _mm256_xor_si256(
+                        _mm256_loadu2_m128i(q as *const __m128i, q.add(1) as *const __m128i),
+                        l,
+                    );
+                    let lo = _mm256_shuffle_epi8(lut, _mm256_and_si256(v, low));
+                    let hi =
+                        _mm256_shuffle_epi8(lut, _mm256_and_si256(_mm256_srli_epi16::<4>(v), low));
+                    acc = _mm256_add_epi8(acc, _mm256_add_epi8(lo, hi));
+                }
+                if padded {
+                    acc = _mm256_blendv_epi8(acc, invalid, pad);
+                }
+                _mm256_storeu_si256(out.as_mut_ptr().add(x * 16) as *mut __m256i, acc);
+                xs.start += 2;
+            }
+        }
         for x in xs {
             let lb: [__m256i; P] = std::array::from_fn(|p| _mm256_set1_epi8(lp[p * w + x] as i8));
             let base = rp.as_ptr().add(w - 1 - x);

@@ -119,13 +119,20 @@ pub(super) fn median3_valid_into(
         let vrows: [&[u8]; 3] =
             std::array::from_fn(|r| &valid[(v + r - 1) * st..(v + r - 1) * st + w]);
         median_row(rows, vrows, med, cnt);
-        for u in 0..w {
-            o[u] = if u > 0 && u + 1 < w {
-                if cnt[u] >= 5 { unkey(med[u]) } else { f32::NAN }
+        // (A select on the bits, so that the loop vectorises.)
+        for ((o, &m), &c) in o[1..w - 1]
+            .iter_mut()
+            .zip(&med[1..w - 1])
+            .zip(&cnt[1..w - 1])
+        {
+            *o = f32::from_bits(if c >= 5 {
+                unkey(m).to_bits()
             } else {
-                median3_valid_pixel(d, u, v)
-            };
+                f32::NAN.to_bits()
+            });
         }
+        o[0] = median3_valid_pixel(d, 0, v);
+        o[w - 1] = median3_valid_pixel(d, w - 1, v);
     }
 }
 

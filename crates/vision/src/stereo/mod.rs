@@ -412,9 +412,9 @@ mod tests {
     fn streaming_simd_and_scalar_equal_the_reference() {
         // (w, h, max disparity, block radius, shift radius, census radius, uniqueness,
         // left-right tolerance, median): padded and unpadded disparity ranges (nd = 16·k + 1
-        // pads 15 lanes), ranges wider than the image, images narrower than one census step
-        // (32), every census radius, shift radius 0 … 3, the uniqueness test, no left-right
-        // check, no median.
+        // pads 15 lanes; 16 disparities, two pixels per cost vector, with and without padding),
+        // ranges wider than the image, images narrower than one census step (32), every census
+        // radius, shift radius 0 … 3, the uniqueness test, no left-right check, no median.
         let cases = [
             (40, 20, 16, 4, 2, 3, 0.0, 1.0, true),
             (57, 31, 33, 2, 0, 3, 0.1, 1.0, true),
@@ -426,6 +426,8 @@ mod tests {
             (64, 33, 128, 4, 2, 3, 0.0, 1.0, false),
             (129, 37, 48, 4, 2, 0, 0.0, 2.0, true),
             (150, 45, 79, 2, 2, 3, 0.05, 0.0, true),
+            (71, 30, 15, 4, 2, 3, 0.0, 1.0, true),
+            (66, 24, 11, 3, 2, 3, 0.0, 1.0, true),
         ];
         for (seed, (w, h, nd, br, sr, cr, uniq, lr, median)) in cases.into_iter().enumerate() {
             let right = random_texture(w + 5, h, seed as u64);
