@@ -304,14 +304,14 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
                 (if j >= n { j - n } else { j }) * stride
             })
         };
-        let h_rows = others(io.h_slot, row_len);
+        let h_rows = others(io.h_slot, ndp);
         for x in 0..w {
             let step = Step::new(&io, x, a_slot);
             // The block-sum columns other than the new one.
             let a_cols = others(a_slot, ndp);
             a_slot = if a_slot + 1 == n { 0 } else { a_slot + 1 };
             debug_assert!(step.a_out.max(step.a_prev) + ndp <= n * ndp);
-            debug_assert!(step.h_at + ndp <= n * row_len && step.x_at + ndp <= row_len);
+            debug_assert!(step.h_column + n * ndp <= n * row_len && step.x_at + ndp <= row_len);
             debug_assert!(!step.update_v || step.v_add == step.v_col);
             let mask = _mm256_set1_epi16((step.dmax + 1) as u16 as i16);
             let mut key = _mm256_set1_epi32(-1);
@@ -347,16 +347,17 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
                 }
                 if io.do_m {
                     let at = step.x_at + k;
+                    let col = sp.add(step.h_column + k);
                     let m = if N > 0 && io.do_h {
                         let mut m = h;
                         for &o in &h_rows[..N - 1] {
-                            m = _mm256_min_epu16(m, ld(sp.add(o + at)));
+                            m = _mm256_min_epu16(m, ld(col.add(o)));
                         }
                         m
                     } else {
-                        let mut m = ld(sp.add(at));
+                        let mut m = ld(col);
                         for i in 1..n {
-                            m = _mm256_min_epu16(m, ld(sp.add(i * row_len + at)));
+                            m = _mm256_min_epu16(m, ld(col.add(i * ndp)));
                         }
                         m
                     };

@@ -225,7 +225,8 @@ struct Buffers {
     /// clamped to the image, in slot `(j + s) mod (2s+1)`).
     blocks: Aligned<u16>,
     /// Ring of the `2s + 1` rows of horizontal shift minima `H` around the output row (row `j`,
-    /// clamped, in slot `(j + s) mod (2s+1)`).
+    /// clamped, in slot `(j + s) mod (2s+1)`), column by column: `H(j, x, d)` at
+    /// `(x·(2s+1) + slot)·ndp + d`, so that the rows a pixel's `M` needs are together.
     shifted: Aligned<u16>,
     /// `M` of the output row (`[x][d]`; the sub-pixel fit and the uniqueness test read it).
     block: Aligned<u16>,
@@ -359,9 +360,10 @@ fn run<const AVX2: bool>(
         } else {
             // Rows below the image are copies of the last one.
             let last = (h - 1 + s) % n;
-            b.shifted
-                .get_mut()
-                .copy_within(last * row_len..(last + 1) * row_len, h_slot * row_len);
+            let ndp = shape.ndp;
+            for col in b.shifted.get_mut().chunks_exact_mut(n * ndp) {
+                col.copy_within(last * ndp..(last + 1) * ndp, h_slot * ndp);
+            }
         }
         let do_h = ya < h;
         let do_m = ya >= s;
@@ -396,9 +398,11 @@ fn run<const AVX2: bool>(
         row_scalar(io);
         if ya == 0 {
             // Rows above the image are copies of row 0.
-            let sh = b.shifted.get_mut();
-            for i in 0..s {
-                sh.copy_within(s * row_len..(s + 1) * row_len, i * row_len);
+            let ndp = shape.ndp;
+            for col in b.shifted.get_mut().chunks_exact_mut(n * ndp) {
+                for i in 0..s {
+                    col.copy_within(s * ndp..(s + 1) * ndp, i * ndp);
+                }
             }
         }
         if !do_m {
@@ -667,9 +671,10 @@ pub(super) struct Step {
     pub a_out: usize,
     pub v_add: usize,
     pub v_sub: usize,
-    /// Where `H(y, x)` goes in the shift-minimum ring; `M(y − s, x)` reads its rows at `x_at`
-    /// and goes to `block[x_at..]`.
+    /// Where `H(y, x)` goes in the shift-minimum ring; `M(y − s, x)` reads its rows from
+    /// `h_column` on (`2s + 1` slots of `ndp`) and goes to `block[x_at..]`.
     pub h_at: usize,
+    pub h_column: usize,
     pub x_at: usize,
     /// The left key over `d ≤ dmax` (`mask`: `dmax < nd − 1`; else over all `ndp` lanes, the
     /// padding never winning).
@@ -704,7 +709,8 @@ impl Step {
             a_out: a_slot * ndp,
             v_add,
             v_sub,
-            h_at: io.h_slot * io.shape.row_len() + x * ndp,
+            h_at: (x * n + io.h_slot) * ndp,
+            h_column: x * n * ndp,
             x_at: x * ndp,
             decide,
             dmax,
@@ -726,7 +732,7 @@ pub(super) fn row_scalar(mut io: RowIo) {
     io.check();
     io.prepare();
     let Shape { w, ndp, s, .. } = io.shape;
-    let (n, row_len) = (io.shape.n(), io.shape.row_len());
+    let n = io.shape.n();
     let mut a_slot = 2 * s % n;
     for x in 0..w {
         let st = Step::new(&io, x, a_slot);
@@ -756,7 +762,7 @@ pub(super) fn row_scalar(mut io: RowIo) {
         let block = &mut io.block[st.x_at..st.x_at + ndp];
         for (d, m) in block.iter_mut().enumerate() {
             *m = (0..n)
-                .map(|i| io.shifted[i * row_len + st.x_at + d])
+                .map(|i| io.shifted[st.h_column + i * ndp + d])
                 .min()
                 .unwrap();
         }
