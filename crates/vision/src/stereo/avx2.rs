@@ -298,7 +298,7 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
         let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
         // The shift-minimum rows other than this row's (n = N known: the new row's H is
         // taken from its register); with n unknown, all n rows.
-        let others = |slot: usize, stride: usize| -> [usize; 8] {
+        let others = |slot: usize, stride: usize| -> [usize; N] {
             std::array::from_fn(|i| {
                 let j = slot + 1 + i;
                 (if j >= n { j - n } else { j }) * stride
@@ -320,14 +320,16 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
                 // H(y, x) of this chunk, when computed.
                 let mut h = _mm256_setzero_si256();
                 if io.do_h {
-                    let mut v_add = ld(vp.add(step.v_add + k));
-                    if step.update_v {
+                    let v_add = if step.update_v {
                         let at = step.v_col + k;
                         let diff = _mm_sub_epi8(ld8(cp_add.add(at)), ld8(cp_sub.add(at)));
                         // (v_add = v_col here.)
-                        v_add = _mm256_add_epi16(ld(vp.add(at)), _mm256_cvtepi8_epi16(diff));
-                        st(vp.add(at), v_add);
-                    }
+                        let v = _mm256_add_epi16(ld(vp.add(at)), _mm256_cvtepi8_epi16(diff));
+                        st(vp.add(at), v);
+                        v
+                    } else {
+                        ld(vp.add(step.v_add + k))
+                    };
                     let a = _mm256_sub_epi16(
                         _mm256_add_epi16(ld(bp.add(step.a_prev + k)), v_add),
                         ld(vp.add(step.v_sub + k)),
