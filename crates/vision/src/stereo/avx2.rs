@@ -4,7 +4,7 @@
 
 use std::arch::x86_64::*;
 
-use super::matcher::{DecideIo, INVALID_COST, LANES, RowIo, Shape, Step, decide_pixel};
+use super::matcher::{DecideIo, INVALID_COST, LANES, RIGHT_WAYS, RowIo, Shape, Step, decide_pixel};
 
 /// Census byte planes of row `y` from the padded image (`c` replicated columns on either side,
 /// rows `stride` apart), 32 pixels per step (the last step overlapping the one before): for each
@@ -305,7 +305,28 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
             })
         };
         let h_rows = others(io.h_slot, ndp);
-        for x in 0..w {
+        let interior = io.interior();
+        let mut x = 0;
+        while x < w {
+            if x == interior.start && x < interior.end && N > 0 {
+                // The columns whose steps are all alike, with the disparity range known.
+                macro_rules! run {
+                    ($($k:literal)*) => {
+                        match ndp / LANES {
+                            $($k => Some(interior_n::<N, $k>(&mut io, interior.clone(), a_slot)),)*
+                            _ => None,
+                        }
+                    };
+                }
+                if let Some(slot) = run!(1 2 3 4 5 6 7 8 9) {
+                    a_slot = slot;
+                    x = interior.end;
+                    continue;
+                }
+            }
+            let this = x;
+            x += 1;
+            let x = this;
             let step = Step::new(&io, x, a_slot);
             // The block-sum columns other than the new one.
             let a_cols = others(a_slot, ndp);
@@ -400,6 +421,93 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
             *io.left_key.get_unchecked_mut(x) = _mm_cvtsi128_si32(k1) as u32;
         }
     }
+}
+
+/// The interior columns of a row (`RowIo::interior`), with `n = N` and `ndp = 16·K` known:
+/// every stage of [`row_n`]'s column step, no branches, constant offsets into the block-sum
+/// ring and the chunk loop unrolled. Returns the block-sum slot after the last column.
+///
+/// # Safety
+/// AVX2; `io` checked, `xs` inside `io.interior()`, `a_slot` the ring slot of column
+/// `xs.start + s`.
+#[target_feature(enable = "avx2")]
+unsafe fn interior_n<const N: usize, const K: usize>(
+    io: &mut RowIo,
+    xs: std::ops::Range<usize>,
+    mut a_slot: usize,
+) -> usize {
+    let ndp = K * LANES;
+    let Shape { w, r, s, .. } = io.shape;
+    assert!(N == io.shape.n() && ndp == io.shape.ndp && N > 0 && K > 0);
+    let inside = io.interior();
+    assert!(xs.start >= inside.start && xs.end <= inside.end && a_slot < N);
+    let (c_add, c_sub) = io.v_rows.expect("interior rows have cost rows");
+    let h_others: [usize; N] = std::array::from_fn(|i| (io.h_slot + 1 + i) % N * ndp);
+    let way = io.shape.right_len();
+    // SAFETY: with x in the interior, every column index below is < w (x + s + r ≤ w − 1,
+    // x + s − r − 1 ≥ 0), ring slots < N, and RowIo::check bounds the buffers.
+    unsafe {
+        let ld = |p: *const u16| _mm256_loadu_si256(p as *const __m256i);
+        let st = |p: *mut u16, v: __m256i| _mm256_storeu_si256(p as *mut __m256i, v);
+        let ld8 = |p: *const u8| _mm_loadu_si128(p as *const __m128i);
+        let (ca, cs) = (c_add.as_ptr(), c_sub.as_ptr());
+        let vp = io.vsum.as_mut_ptr();
+        let bp = io.blocks.as_mut_ptr();
+        let sp = io.shifted.as_mut_ptr();
+        let mp = io.block.as_mut_ptr();
+        let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
+        let lanes = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        for x in xs {
+            let vc = (x + s + r) * ndp;
+            let vs = (x + s - r - 1) * ndp;
+            let a_out = a_slot * ndp;
+            let a_prev = if a_slot == 0 { N - 1 } else { a_slot - 1 } * ndp;
+            a_slot = if a_slot + 1 == N { 0 } else { a_slot + 1 };
+            let column = x * N * ndp;
+            let h_at = column + io.h_slot * ndp;
+            let at = x * ndp;
+            let right = (x % RIGHT_WAYS) * way + (w - 1 - x);
+            let mut key = _mm256_set1_epi32(-1);
+            for c in 0..K {
+                let k = c * LANES;
+                let diff = _mm_sub_epi8(ld8(ca.add(vc + k)), ld8(cs.add(vc + k)));
+                let v = _mm256_add_epi16(ld(vp.add(vc + k)), _mm256_cvtepi8_epi16(diff));
+                st(vp.add(vc + k), v);
+                let a = _mm256_sub_epi16(
+                    _mm256_add_epi16(ld(bp.add(a_prev + k)), v),
+                    ld(vp.add(vs + k)),
+                );
+                st(bp.add(a_out + k), a);
+                let mut h = a;
+                for i in 0..N {
+                    h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
+                }
+                st(sp.add(h_at + k), h);
+                let mut m = h;
+                for &o in &h_others[..N - 1] {
+                    m = _mm256_min_epu16(m, ld(sp.add(column + o + k)));
+                }
+                st(mp.add(at + k), m);
+                let d = _mm256_add_epi16(lanes, _mm256_set1_epi16(k as i16));
+                let (rcost, rindex) = (rc.add(right + k), ri.add(right + k));
+                let old = ld(rcost);
+                let best = _mm256_min_epu16(old, m);
+                let keep = _mm256_cmpeq_epi16(best, old);
+                st(rcost, best);
+                st(rindex, _mm256_blendv_epi8(d, ld(rindex), keep));
+                key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, m));
+                key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, m));
+            }
+            let k4 = _mm_min_epu32(
+                _mm256_castsi256_si128(key),
+                _mm256_extracti128_si256::<1>(key),
+            );
+            let k2 = _mm_min_epu32(k4, _mm_shuffle_epi32::<0b01_00_11_10>(k4));
+            let k1 = _mm_min_epu32(k2, _mm_shuffle_epi32::<0b10_11_00_01>(k2));
+            *io.left_key.get_unchecked_mut(x) = _mm_cvtsi128_si32(k1) as u32;
+        }
+    }
+    a_slot
 }
 
 /// `matcher::decide_row` eight pixels per step: the keys' disparities and costs, the costs

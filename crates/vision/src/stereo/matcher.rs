@@ -610,6 +610,20 @@ impl RowIo<'_> {
         assert!(self.left_key.len() >= sh.w);
     }
 
+    /// The columns whose step is the same as every other's: every stage runs (a row with new
+    /// cost rows, `s ≤ y < h`), `V(x + s + r)` is updated and is inside the image, the leaving
+    /// column `x + s − r − 1` too, and all `nd` disparities compete (`x ≥ r + nd − 1`). Empty
+    /// on the other rows.
+    pub fn interior(&self) -> std::ops::Range<usize> {
+        let Shape { w, nd, r, s, .. } = self.shape;
+        if !(self.do_h && self.do_m && self.v_rows.is_some()) {
+            return 0..0;
+        }
+        let lo = (r + nd - 1).max((r + 1).saturating_sub(s)).max(1);
+        let hi = w.saturating_sub(s + r);
+        lo..hi.max(lo)
+    }
+
     /// Before the column loop: the vertical sums of columns `0 … v_prefix − 1` (the later ones
     /// are updated in the loop, just before their first use) and the block sums of columns
     /// `−s … s − 1` (clamped) into their ring slots: `A(0)` from its `2r + 1` columns of `V`,
