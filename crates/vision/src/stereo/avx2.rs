@@ -305,22 +305,25 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
             })
         };
         let h_rows = others(io.h_slot, ndp);
-        let interior = io.interior();
+        let [masked, plain] = io.interior();
         let mut x = 0;
         while x < w {
-            if x == interior.start && x < interior.end && N > 0 {
+            if x == masked.start && x < plain.end && N > 0 {
                 // The columns whose steps are all alike, with the disparity range known.
                 macro_rules! run {
                     ($($k:literal)*) => {
                         match ndp / LANES {
-                            $($k => Some(interior_n::<N, $k>(&mut io, interior.clone(), a_slot)),)*
+                            $($k => {
+                                let a = interior_n::<N, $k, true>(&mut io, masked.clone(), a_slot);
+                                Some(interior_n::<N, $k, false>(&mut io, plain.clone(), a))
+                            })*
                             _ => None,
                         }
                     };
                 }
                 if let Some(slot) = run!(1 2 3 4 5 6 7 8 9) {
                     a_slot = slot;
-                    x = interior.end;
+                    x = plain.end;
                     continue;
                 }
             }
@@ -423,15 +426,16 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
     }
 }
 
-/// The interior columns of a row (`RowIo::interior`), with `n = N` and `ndp = 16·K` known:
-/// every stage of [`row_n`]'s column step, no branches, constant offsets into the block-sum
-/// ring and the chunk loop unrolled. Returns the block-sum slot after the last column.
+/// The interior columns of a row (`RowIo::interior`; `MASK`: the first part, where the
+/// disparities above `x − r` do not compete), with `n = N` and `ndp = 16·K` known: every stage
+/// of [`row_n`]'s column step, no branches, constant offsets into the block-sum ring and the
+/// chunk loop unrolled. Returns the block-sum slot after the last column.
 ///
 /// # Safety
-/// AVX2; `io` checked, `xs` inside `io.interior()`, `a_slot` the ring slot of column
-/// `xs.start + s`.
+/// AVX2; `io` checked, `xs` inside `io.interior()[MASK as usize ^ 1]`, `a_slot` the ring slot
+/// of column `xs.start + s`.
 #[target_feature(enable = "avx2")]
-unsafe fn interior_n<const N: usize, const K: usize>(
+unsafe fn interior_n<const N: usize, const K: usize, const MASK: bool>(
     io: &mut RowIo,
     xs: std::ops::Range<usize>,
     mut a_slot: usize,
@@ -439,10 +443,10 @@ unsafe fn interior_n<const N: usize, const K: usize>(
     let ndp = K * LANES;
     let Shape { w, r, s, .. } = io.shape;
     assert!(N == io.shape.n() && ndp == io.shape.ndp && N > 0 && K > 0);
-    let inside = io.interior();
-    assert!(xs.start >= inside.start && xs.end <= inside.end && a_slot < N);
+    let inside = &io.interior()[if MASK { 0 } else { 1 }];
+    assert!(xs.is_empty() || (xs.start >= inside.start && xs.end <= inside.end));
+    assert!(a_slot < N);
     let (c_add, c_sub) = io.v_rows.expect("interior rows have cost rows");
-    let h_others: [usize; N] = std::array::from_fn(|i| (io.h_slot + 1 + i) % N * ndp);
     let way = io.shape.right_len();
     // SAFETY: with x in the interior, every column index below is < w (x + s + r ≤ w − 1,
     // x + s − r − 1 ≥ 0), ring slots < N, and RowIo::check bounds the buffers.
@@ -467,6 +471,8 @@ unsafe fn interior_n<const N: usize, const K: usize>(
             let h_at = column + io.h_slot * ndp;
             let at = x * ndp;
             let right = (x % RIGHT_WAYS) * way + (w - 1 - x);
+            // (MASK: lanes d > x − r get cost 0xffff: keys above every candidate's.)
+            let first_masked = _mm256_set1_epi16((x - r + 1) as u16 as i16);
             let mut key = _mm256_set1_epi32(-1);
             for c in 0..K {
                 let k = c * LANES;
@@ -483,9 +489,11 @@ unsafe fn interior_n<const N: usize, const K: usize>(
                     h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
                 }
                 st(sp.add(h_at + k), h);
+                // All N rows of the column at constant offsets (this row's just stored: the
+                // minimum does not mind, and no offsets need registers).
                 let mut m = h;
-                for &o in &h_others[..N - 1] {
-                    m = _mm256_min_epu16(m, ld(sp.add(column + o + k)));
+                for i in 0..N {
+                    m = _mm256_min_epu16(m, ld(sp.add(column + i * ndp + k)));
                 }
                 st(mp.add(at + k), m);
                 let d = _mm256_add_epi16(lanes, _mm256_set1_epi16(k as i16));
@@ -495,8 +503,13 @@ unsafe fn interior_n<const N: usize, const K: usize>(
                 let keep = _mm256_cmpeq_epi16(best, old);
                 st(rcost, best);
                 st(rindex, _mm256_blendv_epi8(d, ld(rindex), keep));
-                key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, m));
-                key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, m));
+                let mm = if MASK {
+                    _mm256_or_si256(m, _mm256_cmpeq_epi16(_mm256_max_epu16(d, first_masked), d))
+                } else {
+                    m
+                };
+                key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, mm));
+                key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, mm));
             }
             let k4 = _mm_min_epu32(
                 _mm256_castsi256_si128(key),

@@ -610,18 +610,20 @@ impl RowIo<'_> {
         assert!(self.left_key.len() >= sh.w);
     }
 
-    /// The columns whose step is the same as every other's: every stage runs (a row with new
-    /// cost rows, `s ≤ y < h`), `V(x + s + r)` is updated and is inside the image, the leaving
-    /// column `x + s − r − 1` too, and all `nd` disparities compete (`x ≥ r + nd − 1`). Empty
-    /// on the other rows.
-    pub fn interior(&self) -> std::ops::Range<usize> {
+    /// The columns whose steps differ only in where they read and write: every stage runs (a
+    /// row with new cost rows, `s ≤ y < h`), `V(x + s + r)` is updated and is inside the image,
+    /// the leaving column `x + s − r − 1` too, and the left winner is decided (`x ≥ r`). Split
+    /// at `x = r + nd − 1`: before it the disparities above `x − r` do not compete (masked),
+    /// from it on all do. Both empty on the other rows.
+    pub fn interior(&self) -> [std::ops::Range<usize>; 2] {
         let Shape { w, nd, r, s, .. } = self.shape;
         if !(self.do_h && self.do_m && self.v_rows.is_some()) {
-            return 0..0;
+            return [0..0, 0..0];
         }
-        let lo = (r + nd - 1).max((r + 1).saturating_sub(s)).max(1);
-        let hi = w.saturating_sub(s + r);
-        lo..hi.max(lo)
+        let lo = r.max((r + 1).saturating_sub(s)).max(1);
+        let hi = w.saturating_sub(s + r).max(lo);
+        let all = (r + nd - 1).clamp(lo, hi);
+        [lo..all, all..hi]
     }
 
     /// Before the column loop: the vertical sums of columns `0 … v_prefix − 1` (the later ones
