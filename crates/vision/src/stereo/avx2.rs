@@ -7,9 +7,9 @@ use std::arch::x86_64::*;
 use super::matcher::{DecideIo, INVALID_COST, LANES, RIGHT_WAYS, RowIo, Shape, Step, decide_pixel};
 
 /// Census byte planes of row `y` from the padded image (`c` replicated columns on either side,
-/// rows `stride` apart), 32 pixels per step (the last step overlapping the one before): for each
-/// neighbour, one signed byte compare against the centres (both with the top bit flipped, so
-/// the compare is unsigned) and `acc = 2·acc − mask`, the neighbours of a plane taken from its
+/// rows `stride` apart, every pixel's top bit flipped so that signed byte compares order them as
+/// unsigned), 32 pixels per step (the last step overlapping the one before): for each
+/// neighbour, one signed byte compare against the centres and `acc = 2·acc − mask`, the neighbours of a plane taken from its
 /// highest bit down, so bit `t` of plane `p` is neighbour `8p + t` in
 /// [`super::census_transform`]'s order. `reversed` stores pixel `x` at `w − 1 − x`.
 ///
@@ -50,7 +50,6 @@ pub(super) unsafe fn census_row(
     // the padded row; stores write out[p·out_stride + (xs or w − 32 − xs) .. + 32] inside plane
     // p's first w bytes.
     unsafe {
-        let flip = _mm256_set1_epi8(i8::MIN);
         let rev = _mm256_setr_epi8(
             15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0, 15, 14, 13, 12, 11, 10, 9, 8, 7,
             6, 5, 4, 3, 2, 1, 0,
@@ -59,15 +58,12 @@ pub(super) unsafe fn census_row(
         let mut x = 0;
         loop {
             let xs = x.min(last);
-            let centre = _mm256_xor_si256(
-                _mm256_loadu_si256(p0.add(y * stride + xs + c) as *const __m256i),
-                flip,
-            );
+            let centre = _mm256_loadu_si256(p0.add(y * stride + xs + c) as *const __m256i);
             for p in 0..planes {
                 let mut acc = _mm256_setzero_si256();
                 for t in (0..8).rev() {
                     let v = _mm256_loadu_si256(p0.add(nb[8 * p + t] + xs) as *const __m256i);
-                    let lt = _mm256_cmpgt_epi8(centre, _mm256_xor_si256(v, flip));
+                    let lt = _mm256_cmpgt_epi8(centre, v);
                     acc = _mm256_sub_epi8(_mm256_add_epi8(acc, acc), lt);
                 }
                 let o = out.as_mut_ptr().add(p * out_stride);

@@ -205,8 +205,8 @@ pub(super) const RIGHT_WAYS: usize = 4;
 #[derive(Debug, Clone)]
 struct Buffers {
     shape: Shape,
-    /// Both images with `c` columns replicated on either side (AVX2 census): row `y` at
-    /// `y·padded_stride`.
+    /// Both images with `c` columns replicated on either side and the top bit of every pixel
+    /// flipped (AVX2 census): row `y` at `y·padded_stride`.
     padded: [Vec<u8>; 2],
     padded_stride: usize,
     /// Census byte planes of the current left row: plane `b` at `b·w`.
@@ -320,10 +320,13 @@ fn run<const AVX2: bool>(
         let c = shape.census_radius;
         for (img, pad) in [left, right].into_iter().zip(&mut b.padded) {
             for (y, p) in pad.chunks_exact_mut(b.padded_stride).enumerate() {
+                // (Top bit flipped: signed byte compares order them as unsigned.)
                 let row = img.row(y);
-                p[..c].fill(row[0]);
-                p[c..c + w].copy_from_slice(row);
-                p[c + w..].fill(row[w - 1]);
+                p[..c].fill(row[0] ^ 0x80);
+                for (q, &v) in p[c..c + w].iter_mut().zip(row) {
+                    *q = v ^ 0x80;
+                }
+                p[c + w..].fill(row[w - 1] ^ 0x80);
             }
         }
     }
