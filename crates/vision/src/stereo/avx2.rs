@@ -103,14 +103,15 @@ pub(super) unsafe fn costs(
     nd: usize,
     ndp: usize,
     out: &mut [u8],
+    skip: std::ops::Range<usize>,
 ) {
     // SAFETY: forwarded (AVX2).
     unsafe {
         match planes {
-            6 => costs_n::<6>(lp, rp, rs, w, nd, ndp, out),
-            3 => costs_n::<3>(lp, rp, rs, w, nd, ndp, out),
-            1 => costs_n::<1>(lp, rp, rs, w, nd, ndp, out),
-            0 => costs_n::<0>(lp, rp, rs, w, nd, ndp, out),
+            6 => costs_n::<6>(lp, rp, rs, w, nd, ndp, out, skip),
+            3 => costs_n::<3>(lp, rp, rs, w, nd, ndp, out, skip),
+            1 => costs_n::<1>(lp, rp, rs, w, nd, ndp, out, skip),
+            0 => costs_n::<0>(lp, rp, rs, w, nd, ndp, out, skip),
             _ => unreachable!("census planes: 0, 1, 3 or 6"),
         }
     }
@@ -118,6 +119,7 @@ pub(super) unsafe fn costs(
 
 #[target_feature(enable = "avx2")]
 #[inline]
+#[allow(clippy::too_many_arguments)]
 unsafe fn costs_n<const P: usize>(
     lp: &[u8],
     rp: &[u8],
@@ -126,15 +128,24 @@ unsafe fn costs_n<const P: usize>(
     nd: usize,
     ndp: usize,
     out: &mut [u8],
+    skip: std::ops::Range<usize>,
 ) {
     assert!(ndp % LANES == 0 && nd <= ndp && ndp < nd + LANES);
     assert!(lp.len() >= P * w && out.len() >= w * ndp + 16);
     assert!(P == 0 || (rs >= w + ndp + 16 && rp.len() >= (P - 1) * rs + w + ndp + 16));
     let b = nd.min(w);
+    // (The skipped pixels lie among the ones without disparities past the border.)
+    assert!(skip.is_empty() || (skip.start >= b && skip.end <= w));
+    let (s0, s1) = if skip.is_empty() {
+        (w, w)
+    } else {
+        (skip.start, skip.end)
+    };
     // SAFETY: forwarded (AVX2, sizes checked).
     unsafe {
         costs_range::<P, true>(lp, rp, rs, w, nd, ndp, out, 0..b);
-        costs_range::<P, false>(lp, rp, rs, w, nd, ndp, out, b..w);
+        costs_range::<P, false>(lp, rp, rs, w, nd, ndp, out, b..s0);
+        costs_range::<P, false>(lp, rp, rs, w, nd, ndp, out, s1..w);
     }
 }
 
@@ -275,8 +286,59 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
     let Shape { w, ndp, s, .. } = io.shape;
     let n = if N > 0 { N } else { io.shape.n() };
     assert!(n == io.shape.n());
-    let row_len = io.shape.row_len();
     let mut a_slot = 2 * s % n;
+    let [masked, plain] = io.interior();
+    let mut x = 0;
+    while x < w {
+        if x == masked.start && x < plain.end && N > 0 {
+            // The columns whose steps are all alike, with the disparity range known.
+            let fused = io.fused.is_some();
+            macro_rules! run {
+                ($($k:literal)*) => {
+                    match ndp / LANES {
+                        $($k => {
+                            // SAFETY: AVX2; the ranges are io.interior()'s, a_slot follows.
+                            unsafe {
+                                let a = interior_n::<N, $k, true>(&mut io, masked.clone(), a_slot);
+                                Some(if fused {
+                                    interior_fused::<N, $k>(&mut io, plain.clone(), a)
+                                } else {
+                                    interior_n::<N, $k, false>(&mut io, plain.clone(), a)
+                                })
+                            }
+                        })*
+                        _ => None,
+                    }
+                };
+            }
+            if let Some(slot) = run!(1 2 3 4 5 6 7 8 9) {
+                a_slot = slot;
+                x = plain.end;
+                continue;
+            }
+        }
+        // (Its column x + s + r is not among the fused ones: those follow the plain interior.)
+        // SAFETY: AVX2; a_slot is the ring slot of column x + s.
+        unsafe { general_column::<N>(&mut io, x, a_slot) };
+        a_slot = if a_slot + 1 == n { 0 } else { a_slot + 1 };
+        x += 1;
+    }
+}
+
+/// One column of [`row_n`] outside the interior (any row, any column, all cases by branches).
+///
+/// # Safety
+/// AVX2; `io` checked, `a_slot` the ring slot of column `x + s`.
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn general_column<const N: usize>(io: &mut RowIo, x: usize, a_slot: usize) {
+    let Shape { ndp, .. } = io.shape;
+    let n = if N > 0 { N } else { io.shape.n() };
+    let row_len = io.shape.row_len();
+    let step = Step::new(io, x, a_slot);
+    debug_assert!(step.a_out.max(step.a_prev) + ndp <= n * ndp);
+    debug_assert!(step.h_column + n * ndp <= n * row_len && step.x_at + ndp <= row_len);
+    debug_assert!(!step.update_v || step.v_add == step.v_col);
     // SAFETY: RowIo::check bounds every buffer; Step::new's offsets plus k + 16 ≤ ndp lie
     // inside them (slots < n, columns < w, right_at + ndp ≤ RIGHT_WAYS·right_len).
     unsafe {
@@ -284,7 +346,7 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
         let st = |p: *mut u16, v: __m256i| _mm256_storeu_si256(p as *mut __m256i, v);
         let ld8 = |p: *const u8| _mm_loadu_si128(p as *const __m128i);
         let (cp_add, cp_sub) = match io.v_rows {
-            Some((a, s)) => (a.as_ptr(), s.as_ptr()),
+            Some((a, s)) => (io.costs.as_ptr().add(a), io.costs.as_ptr().add(s)),
             None => (std::ptr::null(), std::ptr::null()),
         };
         let vp = io.vsum.as_mut_ptr();
@@ -292,134 +354,84 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
         let sp = io.shifted.as_mut_ptr();
         let (mp, lp) = (io.block.as_mut_ptr(), io.lanes.as_ptr());
         let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
-        // The shift-minimum rows other than this row's (n = N known: the new row's H is
-        // taken from its register); with n unknown, all n rows.
-        let others = |slot: usize, stride: usize| -> [usize; N] {
-            std::array::from_fn(|i| {
-                let j = slot + 1 + i;
-                (if j >= n { j - n } else { j }) * stride
-            })
-        };
-        let h_rows = others(io.h_slot, ndp);
-        let [masked, plain] = io.interior();
-        let mut x = 0;
-        while x < w {
-            if x == masked.start && x < plain.end && N > 0 {
-                // The columns whose steps are all alike, with the disparity range known.
-                macro_rules! run {
-                    ($($k:literal)*) => {
-                        match ndp / LANES {
-                            $($k => {
-                                let a = interior_n::<N, $k, true>(&mut io, masked.clone(), a_slot);
-                                Some(interior_n::<N, $k, false>(&mut io, plain.clone(), a))
-                            })*
-                            _ => None,
-                        }
-                    };
+        let mask = _mm256_set1_epi16((step.dmax + 1) as u16 as i16);
+        let mut key = _mm256_set1_epi32(-1);
+        let mut k = 0;
+        while k < ndp {
+            // H(y, x) of this chunk, when computed.
+            let mut h = _mm256_setzero_si256();
+            if io.do_h {
+                let v_add = if step.update_v {
+                    let at = step.v_col + k;
+                    let diff = _mm_sub_epi8(ld8(cp_add.add(at)), ld8(cp_sub.add(at)));
+                    // (v_add = v_col here.)
+                    let v = _mm256_add_epi16(ld(vp.add(at)), _mm256_cvtepi8_epi16(diff));
+                    st(vp.add(at), v);
+                    v
+                } else {
+                    ld(vp.add(step.v_add + k))
+                };
+                let a = _mm256_sub_epi16(
+                    _mm256_add_epi16(ld(bp.add(step.a_prev + k)), v_add),
+                    ld(vp.add(step.v_sub + k)),
+                );
+                st(bp.add(step.a_out + k), a);
+                h = a;
+                for i in 0..n {
+                    h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
                 }
-                if let Some(slot) = run!(1 2 3 4 5 6 7 8 9) {
-                    a_slot = slot;
-                    x = plain.end;
-                    continue;
-                }
+                st(sp.add(step.h_at + k), h);
             }
-            let this = x;
-            x += 1;
-            let x = this;
-            let step = Step::new(&io, x, a_slot);
-            // The block-sum columns other than the new one.
-            let a_cols = others(a_slot, ndp);
-            a_slot = if a_slot + 1 == n { 0 } else { a_slot + 1 };
-            debug_assert!(step.a_out.max(step.a_prev) + ndp <= n * ndp);
-            debug_assert!(step.h_column + n * ndp <= n * row_len && step.x_at + ndp <= row_len);
-            debug_assert!(!step.update_v || step.v_add == step.v_col);
-            let mask = _mm256_set1_epi16((step.dmax + 1) as u16 as i16);
-            let mut key = _mm256_set1_epi32(-1);
-            let mut k = 0;
-            while k < ndp {
-                // H(y, x) of this chunk, when computed.
-                let mut h = _mm256_setzero_si256();
-                if io.do_h {
-                    let v_add = if step.update_v {
-                        let at = step.v_col + k;
-                        let diff = _mm_sub_epi8(ld8(cp_add.add(at)), ld8(cp_sub.add(at)));
-                        // (v_add = v_col here.)
-                        let v = _mm256_add_epi16(ld(vp.add(at)), _mm256_cvtepi8_epi16(diff));
-                        st(vp.add(at), v);
-                        v
-                    } else {
-                        ld(vp.add(step.v_add + k))
-                    };
-                    let a = _mm256_sub_epi16(
-                        _mm256_add_epi16(ld(bp.add(step.a_prev + k)), v_add),
-                        ld(vp.add(step.v_sub + k)),
-                    );
-                    st(bp.add(step.a_out + k), a);
-                    h = a;
-                    if N > 0 {
-                        for &o in &a_cols[..N - 1] {
-                            h = _mm256_min_epu16(h, ld(bp.add(o + k)));
-                        }
-                    } else {
-                        for i in 0..n {
-                            h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
-                        }
-                    }
-                    st(sp.add(step.h_at + k), h);
+            if io.do_m {
+                let at = step.x_at + k;
+                // All n rows of the column (this row's just stored, if computed).
+                let col = sp.add(step.h_column + k);
+                let mut m = if io.do_h { h } else { ld(col) };
+                for i in 0..n {
+                    m = _mm256_min_epu16(m, ld(col.add(i * ndp)));
                 }
-                if io.do_m {
-                    let at = step.x_at + k;
-                    let col = sp.add(step.h_column + k);
-                    let m = if N > 0 && io.do_h {
-                        let mut m = h;
-                        for &o in &h_rows[..N - 1] {
-                            m = _mm256_min_epu16(m, ld(col.add(o)));
-                        }
-                        m
+                st(mp.add(at), m);
+                let d = ld(lp.add(k));
+                // Right winners: replace where m is strictly lower (the earlier, smaller
+                // disparity kept on ties).
+                let (rcost, rindex) = (rc.add(step.right_at + k), ri.add(step.right_at + k));
+                let old = ld(rcost);
+                let best = _mm256_min_epu16(old, m);
+                let keep = _mm256_cmpeq_epi16(best, old);
+                st(rcost, best);
+                st(rindex, _mm256_blendv_epi8(d, ld(rindex), keep));
+                if step.decide {
+                    let mm = if step.mask {
+                        // Lanes d > dmax get cost 0xffff: keys above every candidate's.
+                        _mm256_or_si256(m, _mm256_cmpeq_epi16(_mm256_max_epu16(d, mask), d))
                     } else {
-                        let mut m = ld(col);
-                        for i in 1..n {
-                            m = _mm256_min_epu16(m, ld(col.add(i * ndp)));
-                        }
                         m
                     };
-                    st(mp.add(at), m);
-                    let d = ld(lp.add(k));
-                    // Right winners: replace where m is strictly lower (the earlier, smaller
-                    // disparity kept on ties).
-                    let (rcost, rindex) = (rc.add(step.right_at + k), ri.add(step.right_at + k));
-                    let old = ld(rcost);
-                    let best = _mm256_min_epu16(old, m);
-                    let keep = _mm256_cmpeq_epi16(best, old);
-                    st(rcost, best);
-                    st(rindex, _mm256_blendv_epi8(d, ld(rindex), keep));
-                    if step.decide {
-                        let mm = if step.mask {
-                            // Lanes d > dmax get cost 0xffff: keys above every candidate's.
-                            _mm256_or_si256(m, _mm256_cmpeq_epi16(_mm256_max_epu16(d, mask), d))
-                        } else {
-                            m
-                        };
-                        // (d, cost) word pairs are the u32 keys (cost ≪ 16) | d.
-                        key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, mm));
-                        key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, mm));
-                    }
+                    // (d, cost) word pairs are the u32 keys (cost ≪ 16) | d.
+                    key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, mm));
+                    key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, mm));
                 }
-                k += LANES;
             }
-            if !io.do_m {
-                continue;
-            }
-            let k4 = _mm_min_epu32(
-                _mm256_castsi256_si128(key),
-                _mm256_extracti128_si256::<1>(key),
-            );
-            let k2 = _mm_min_epu32(k4, _mm_shuffle_epi32::<0b01_00_11_10>(k4));
-            let k1 = _mm_min_epu32(k2, _mm_shuffle_epi32::<0b10_11_00_01>(k2));
+            k += LANES;
+        }
+        if io.do_m {
             // (u32::MAX when there is no decision: no lane competed.)
-            *io.left_key.get_unchecked_mut(x) = _mm_cvtsi128_si32(k1) as u32;
+            *io.left_key.get_unchecked_mut(x) = min_key(key);
         }
     }
+}
+
+/// The lowest of the eight `u32` lanes.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn min_key(key: __m256i) -> u32 {
+    let k4 = _mm_min_epu32(
+        _mm256_castsi256_si128(key),
+        _mm256_extracti128_si256::<1>(key),
+    );
+    let k2 = _mm_min_epu32(k4, _mm_shuffle_epi32::<0b01_00_11_10>(k4));
+    let k1 = _mm_min_epu32(k2, _mm_shuffle_epi32::<0b10_11_00_01>(k2));
+    _mm_cvtsi128_si32(k1) as u32
 }
 
 /// The interior columns of a row (`RowIo::interior`; `MASK`: the first part, where the
@@ -450,12 +462,15 @@ unsafe fn interior_n<const N: usize, const K: usize, const MASK: bool>(
         let ld = |p: *const u16| _mm256_loadu_si256(p as *const __m256i);
         let st = |p: *mut u16, v: __m256i| _mm256_storeu_si256(p as *mut __m256i, v);
         let ld8 = |p: *const u8| _mm_loadu_si128(p as *const __m128i);
-        let (ca, cs) = (c_add.as_ptr(), c_sub.as_ptr());
+        let (ca, cs) = (io.costs.as_ptr().add(c_add), io.costs.as_ptr().add(c_sub));
         let vp = io.vsum.as_mut_ptr();
         let bp = io.blocks.as_mut_ptr();
         let sp = io.shifted.as_mut_ptr();
         let mp = io.block.as_mut_ptr();
         let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
+        // (Locals, so that the stores through the buffers' pointers cannot be thought to
+        // change them.)
+        let (kp, h_slot) = (io.left_key.as_mut_ptr(), io.h_slot);
         let lanes = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
         for x in xs {
             let vc = (x + s + r) * ndp;
@@ -464,7 +479,7 @@ unsafe fn interior_n<const N: usize, const K: usize, const MASK: bool>(
             let a_prev = if a_slot == 0 { N - 1 } else { a_slot - 1 } * ndp;
             a_slot = if a_slot + 1 == N { 0 } else { a_slot + 1 };
             let column = x * N * ndp;
-            let h_at = column + io.h_slot * ndp;
+            let h_at = column + h_slot * ndp;
             let at = x * ndp;
             let right = (x % RIGHT_WAYS) * way + (w - 1 - x);
             // (MASK: lanes d > x − r get cost 0xffff: keys above every candidate's.)
@@ -507,13 +522,7 @@ unsafe fn interior_n<const N: usize, const K: usize, const MASK: bool>(
                 key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, mm));
                 key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, mm));
             }
-            let k4 = _mm_min_epu32(
-                _mm256_castsi256_si128(key),
-                _mm256_extracti128_si256::<1>(key),
-            );
-            let k2 = _mm_min_epu32(k4, _mm_shuffle_epi32::<0b01_00_11_10>(k4));
-            let k1 = _mm_min_epu32(k2, _mm_shuffle_epi32::<0b10_11_00_01>(k2));
-            *io.left_key.get_unchecked_mut(x) = _mm_cvtsi128_si32(k1) as u32;
+            *kp.add(x) = min_key(key);
         }
     }
     a_slot
@@ -617,4 +626,148 @@ pub(super) unsafe fn decide_row(io: DecideIo) {
             io.max_lr_difference,
         );
     }
+}
+
+/// [`interior_n`]'s plain columns on a row with a new cost row: each column first computes
+/// the pixel costs of column `x + s + r` of that row from the census planes (`RowIo::fused`)
+/// into the ring, which the vertical sums then read straight back (from L1); the byte-heavy
+/// cost arithmetic and the load-heavy aggregation share the column.
+///
+/// # Safety
+/// AVX2; `io` checked, `xs` = `io.interior()[1]`, `io.fused` its columns shifted by `s + r`,
+/// `a_slot` the ring slot of column `xs.start + s`.
+#[target_feature(enable = "avx2")]
+unsafe fn interior_fused<const N: usize, const K: usize>(
+    io: &mut RowIo,
+    xs: std::ops::Range<usize>,
+    mut a_slot: usize,
+) -> usize {
+    let ndp = K * LANES;
+    let Shape { w, r, s, .. } = io.shape;
+    assert!(N == io.shape.n() && ndp == io.shape.ndp && N > 0 && K > 0);
+    let inside = &io.interior()[1];
+    assert!(xs.is_empty() || (xs.start >= inside.start && xs.end <= inside.end));
+    assert!(a_slot < N);
+    let (c_add, c_sub) = io.v_rows.expect("interior rows have cost rows");
+    let nd = io.shape.nd;
+    let census = io.fused.as_ref().expect("fused costs");
+    assert!(census.columns == (xs.start + s + r..xs.end + s + r) && xs.start + s + r >= nd);
+    let (lp, rp, rs) = (
+        census.left_planes.as_ptr(),
+        census.right_planes.as_ptr(),
+        census.right_stride,
+    );
+    // The last 32-lane group of a pixel's costs holds the padding lanes d ≥ nd.
+    let groups = K.div_ceil(2);
+    let pad_from = nd as isize - (groups as isize - 1) * 32;
+    let way = io.shape.right_len();
+    // SAFETY: with x in the interior, every column index below is < w (x + s + r ≤ w − 1,
+    // x + s − r − 1 ≥ 0), ring slots < N, and RowIo::check bounds the buffers.
+    unsafe {
+        let ld = |p: *const u16| _mm256_loadu_si256(p as *const __m256i);
+        let st = |p: *mut u16, v: __m256i| _mm256_storeu_si256(p as *mut __m256i, v);
+        let ld8 = |p: *const u8| _mm_loadu_si128(p as *const __m128i);
+        let ca = io.costs.as_mut_ptr().add(c_add);
+        let cs = io.costs.as_ptr().add(c_sub);
+        let vp = io.vsum.as_mut_ptr();
+        let bp = io.blocks.as_mut_ptr();
+        let sp = io.shifted.as_mut_ptr();
+        let mp = io.block.as_mut_ptr();
+        let (rc, ri) = (io.right_cost.as_mut_ptr(), io.right_index.as_mut_ptr());
+        // (Locals, so that the stores through the buffers' pointers cannot be thought to
+        // change them.)
+        let (kp, h_slot) = (io.left_key.as_mut_ptr(), io.h_slot);
+        let lanes = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let byte_lanes = _mm256_setr_epi8(
+            0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23,
+            24, 25, 26, 27, 28, 29, 30, 31,
+        );
+        for x in xs {
+            // The costs of pixel x + s + r of the new row (no disparity past the border:
+            // x + s + r ≥ nd), 32 disparities per group as `costs` does, into the ring.
+            let xc = x + s + r;
+            let lb: [__m256i; 6] =
+                std::array::from_fn(|p| _mm256_set1_epi8(*lp.add(p * w + xc) as i8));
+            let base = rp.add(w - 1 - xc);
+            for g in 0..groups {
+                let mut acc = _mm256_setzero_si256();
+                for (p, &l) in lb.iter().enumerate() {
+                    let v = _mm256_xor_si256(
+                        _mm256_loadu_si256(base.add(p * rs + 32 * g) as *const __m256i),
+                        l,
+                    );
+                    acc = _mm256_add_epi8(acc, popcount_bytes(v));
+                }
+                if g + 1 == groups && pad_from < 32 {
+                    let past = _mm256_cmpgt_epi8(byte_lanes, _mm256_set1_epi8(pad_from as i8 - 1));
+                    acc = _mm256_blendv_epi8(acc, _mm256_set1_epi8(INVALID_COST as i8), past);
+                }
+                let o = ca.add(xc * ndp + 32 * g);
+                if 2 * g + 1 < K {
+                    _mm256_storeu_si256(o as *mut __m256i, acc);
+                } else {
+                    _mm_storeu_si128(o as *mut __m128i, _mm256_castsi256_si128(acc));
+                }
+            }
+            let vc = (x + s + r) * ndp;
+            let vs = (x + s - r - 1) * ndp;
+            let a_out = a_slot * ndp;
+            let a_prev = if a_slot == 0 { N - 1 } else { a_slot - 1 } * ndp;
+            a_slot = if a_slot + 1 == N { 0 } else { a_slot + 1 };
+            let column = x * N * ndp;
+            let h_at = column + h_slot * ndp;
+            let at = x * ndp;
+            let right = (x % RIGHT_WAYS) * way + (w - 1 - x);
+            let mut key = _mm256_set1_epi32(-1);
+            for c in 0..K {
+                let k = c * LANES;
+                let diff = _mm_sub_epi8(ld8(ca.add(vc + k)), ld8(cs.add(vc + k)));
+                let v = _mm256_add_epi16(ld(vp.add(vc + k)), _mm256_cvtepi8_epi16(diff));
+                st(vp.add(vc + k), v);
+                let a = _mm256_sub_epi16(
+                    _mm256_add_epi16(ld(bp.add(a_prev + k)), v),
+                    ld(vp.add(vs + k)),
+                );
+                st(bp.add(a_out + k), a);
+                let mut h = a;
+                for i in 0..N {
+                    h = _mm256_min_epu16(h, ld(bp.add(i * ndp + k)));
+                }
+                st(sp.add(h_at + k), h);
+                // All N rows of the column at constant offsets (this row's just stored: the
+                // minimum does not mind, and no offsets need registers).
+                let mut m = h;
+                for i in 0..N {
+                    m = _mm256_min_epu16(m, ld(sp.add(column + i * ndp + k)));
+                }
+                st(mp.add(at + k), m);
+                let d = _mm256_add_epi16(lanes, _mm256_set1_epi16(k as i16));
+                let (rcost, rindex) = (rc.add(right + k), ri.add(right + k));
+                let old = ld(rcost);
+                let best = _mm256_min_epu16(old, m);
+                let keep = _mm256_cmpeq_epi16(best, old);
+                st(rcost, best);
+                st(rindex, _mm256_blendv_epi8(d, ld(rindex), keep));
+                key = _mm256_min_epu32(key, _mm256_unpacklo_epi16(d, m));
+                key = _mm256_min_epu32(key, _mm256_unpackhi_epi16(d, m));
+            }
+            *kp.add(x) = min_key(key);
+        }
+    }
+    a_slot
+}
+
+/// Byte popcounts by the `pshufb` nibble table.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn popcount_bytes(v: __m256i) -> __m256i {
+    let lut = _mm256_setr_epi8(
+        0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4, 0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3,
+        3, 4,
+    );
+    let low = _mm256_set1_epi8(0x0f);
+    _mm256_add_epi8(
+        _mm256_shuffle_epi8(lut, _mm256_and_si256(v, low)),
+        _mm256_shuffle_epi8(lut, _mm256_and_si256(_mm256_srli_epi16::<4>(v), low)),
+    )
 }

@@ -162,6 +162,18 @@ impl Shape {
         self.r + self.s.max(1)
     }
 
+    /// [`RowIo::interior`] of a row on which every stage runs (`all_stages`; else empty).
+    pub fn interior(&self, all_stages: bool) -> [std::ops::Range<usize>; 2] {
+        let Shape { w, nd, r, s, .. } = *self;
+        if !all_stages {
+            return [0..0, 0..0];
+        }
+        let lo = r.max((r + 1).saturating_sub(s)).max(1);
+        let hi = w.saturating_sub(s + r).max(lo);
+        let all = (r + nd - 1).clamp(lo, hi);
+        [lo..all, all..hi]
+    }
+
     /// Length of one way of the right winners' buffers (index `w − 1 − x_r`, `x_r` down to
     /// `−(ndp − 1)`).
     pub fn right_len(&self) -> usize {
@@ -337,10 +349,11 @@ fn run<const AVX2: bool>(
         // The cost rows entering and leaving this row's vertical sums (none for row 0, whose
         // sums are made here whole).
         let mut v_rows = None;
+        let mut fused = None;
         if ya == 0 {
             computed = r.min(h - 1) + 1;
             for yy in 0..computed {
-                cost_row::<AVX2>(b, left, right, yy, yy % cost_slots);
+                cost_row::<AVX2>(b, left, right, yy, yy % cost_slots, 0..0);
             }
             let costs = b.costs.get();
             let vsum = b.vsum.get_mut();
@@ -356,7 +369,19 @@ fn run<const AVX2: bool>(
             let add = (ya + r).min(h - 1);
             let sub = ya.saturating_sub(r + 1);
             if add == computed {
-                cost_row::<AVX2>(b, left, right, add, add % cost_slots);
+                // A new cost row: the row kernel computes the costs of the interior columns
+                // itself where it can (AVX2, 7×7 census), the cost pass the others.
+                let plain = shape.interior(ya >= s)[1].clone();
+                if AVX2
+                    && shape.planes == 6
+                    && fusable(&shape)
+                    && !plain.is_empty()
+                    && plain.start + s + r >= shape.nd
+                {
+                    fused = Some(plain.start + s + r..plain.end + s + r);
+                }
+                let skip = fused.clone().unwrap_or(0..0);
+                cost_row::<AVX2>(b, left, right, add, add % cost_slots, skip);
                 computed += 1;
             }
             v_rows = Some((add % cost_slots * cs, sub % cost_slots * cs));
@@ -374,12 +399,18 @@ fn run<const AVX2: bool>(
             b.right_cost.get_mut().fill(u16::MAX);
             b.right_index.get_mut().fill(0);
         }
-        let costs = b.costs.get();
         let io = RowIo {
             shape,
             do_h,
             do_m,
-            v_rows: v_rows.map(|(a, s)| (&costs[a..a + row_len], &costs[s..s + row_len])),
+            costs: b.costs.get_mut(),
+            v_rows,
+            fused: fused.map(|columns| Fused {
+                left_planes: &b.left_planes,
+                right_planes: &b.right_planes,
+                right_stride: b.right_stride,
+                columns,
+            }),
             vsum: b.vsum.get_mut(),
             blocks: b.blocks.get_mut(),
             shifted: b.shifted.get_mut(),
@@ -456,7 +487,15 @@ fn run<const AVX2: bool>(
     }
 }
 
-/// Census planes of row `y` of both images and the pixel costs `C(y)` into ring slot `slot`.
+/// Whether the AVX2 row kernel has an instance computing the interior's costs itself (`2s + 1`
+/// and the padded disparity count among the specialised ones; not for 16 disparities, whose
+/// cost pass does two pixels per vector).
+pub(super) fn fusable(shape: &Shape) -> bool {
+    matches!(shape.n(), 1 | 3 | 5) && (2..=9).contains(&(shape.ndp / LANES))
+}
+
+/// Census planes of row `y` of both images and the pixel costs `C(y)` into ring slot `slot`,
+/// except the pixels `skip` (the row kernel computes those).
 #[inline(always)]
 fn cost_row<const AVX2: bool>(
     b: &mut Buffers,
@@ -464,6 +503,7 @@ fn cost_row<const AVX2: bool>(
     right: &GrayImage,
     y: usize,
     slot: usize,
+    skip: std::ops::Range<usize>,
 ) {
     let Shape {
         w,
@@ -529,10 +569,12 @@ fn cost_row<const AVX2: bool>(
                 nd,
                 ndp,
                 out,
+                skip.clone(),
             )
         };
     }
     if !AVX2 {
+        assert!(skip.is_empty(), "only the AVX2 row kernel computes costs");
         costs_scalar(
             &b.left_planes,
             &b.right_planes,
@@ -581,8 +623,13 @@ pub(super) struct RowIo<'a> {
     pub do_h: bool,
     /// Compute `M` and the winners of the output row.
     pub do_m: bool,
-    /// The pixel-cost rows entering and leaving the vertical sums (`None`: `V` is up to date).
-    pub v_rows: Option<(&'a [u8], &'a [u8])>,
+    /// The pixel-cost ring and the offsets of the rows entering and leaving the vertical sums
+    /// (`None`: `V` is up to date).
+    pub costs: &'a mut [u8],
+    pub v_rows: Option<(usize, usize)>,
+    /// Columns whose entering pixel costs the (AVX2) kernel computes itself, from the census
+    /// planes of the new row, instead of reading them (the cost pass skipped them).
+    pub fused: Option<Fused<'a>>,
     pub vsum: &'a mut [u16],
     pub blocks: &'a mut [u16],
     pub shifted: &'a mut [u16],
@@ -596,6 +643,15 @@ pub(super) struct RowIo<'a> {
     pub left_key: &'a mut [u32],
 }
 
+/// The census planes of a new cost row and the columns `x'` (of `V`) whose costs the row kernel
+/// computes (see [`RowIo::fused`]).
+pub(super) struct Fused<'a> {
+    pub left_planes: &'a [u8],
+    pub right_planes: &'a [u8],
+    pub right_stride: usize,
+    pub columns: std::ops::Range<usize>,
+}
+
 impl RowIo<'_> {
     /// The sizes the kernels rely on (every offset of a [`Step`] lies inside them).
     pub fn check(&self) {
@@ -605,7 +661,13 @@ impl RowIo<'_> {
         assert!(self.vsum.len() >= row && self.blocks.len() >= n * ndp);
         assert!(self.shifted.len() >= n * row && self.h_slot < n);
         if let Some((a, s)) = self.v_rows {
-            assert!(a.len() >= row && s.len() >= row);
+            assert!(a.max(s) + row <= self.costs.len() && a.abs_diff(s) >= row);
+        }
+        if let Some(f) = &self.fused {
+            // (The fused kernel is the 7×7 census's: six planes.)
+            assert!(sh.planes == 6 && self.v_rows.is_some() && f.columns.end <= sh.w);
+            assert!(f.left_planes.len() >= 6 * sh.w && f.right_stride >= sh.w + ndp + 32);
+            assert!(f.right_planes.len() >= 5 * f.right_stride + sh.w + ndp + 32);
         }
         assert!(self.block.len() >= row && self.lanes.len() >= ndp);
         let right = RIGHT_WAYS * sh.right_len();
@@ -619,14 +681,8 @@ impl RowIo<'_> {
     /// at `x = r + nd − 1`: before it the disparities above `x − r` do not compete (masked),
     /// from it on all do. Both empty on the other rows.
     pub fn interior(&self) -> [std::ops::Range<usize>; 2] {
-        let Shape { w, nd, r, s, .. } = self.shape;
-        if !(self.do_h && self.do_m && self.v_rows.is_some()) {
-            return [0..0, 0..0];
-        }
-        let lo = r.max((r + 1).saturating_sub(s)).max(1);
-        let hi = w.saturating_sub(s + r).max(lo);
-        let all = (r + nd - 1).clamp(lo, hi);
-        [lo..all, all..hi]
+        self.shape
+            .interior(self.do_h && self.do_m && self.v_rows.is_some())
     }
 
     /// Before the column loop: the vertical sums of columns `0 … v_prefix − 1` (the later ones
@@ -639,7 +695,9 @@ impl RowIo<'_> {
         if !self.do_h {
             return;
         }
-        if let Some((add, sub)) = self.v_rows {
+        let row = self.shape.row_len();
+        if let Some((a, s)) = self.v_rows {
+            let (add, sub) = (&self.costs[a..a + row], &self.costs[s..s + row]);
             let end = self.shape.v_prefix().min(w) * ndp;
             for ((v, &a), &u) in self.vsum[..end].iter_mut().zip(add).zip(sub) {
                 *v = v.wrapping_add(a as u16).wrapping_sub(u as u16);
@@ -758,12 +816,17 @@ pub(super) fn row_scalar(mut io: RowIo) {
         a_slot = if a_slot + 1 == n { 0 } else { a_slot + 1 };
         if io.do_h {
             if st.update_v {
-                let (add, sub) = io.v_rows.expect("update_v");
-                for d in 0..ndp {
-                    let v = &mut io.vsum[st.v_col + d];
-                    *v = v
-                        .wrapping_add(add[st.v_col + d] as u16)
-                        .wrapping_sub(sub[st.v_col + d] as u16);
+                let (a, s) = io.v_rows.expect("update_v");
+                let (add, sub) = (
+                    &io.costs[a + st.v_col..a + st.v_col + ndp],
+                    &io.costs[s + st.v_col..s + st.v_col + ndp],
+                );
+                for ((v, &a), &s) in io.vsum[st.v_col..st.v_col + ndp]
+                    .iter_mut()
+                    .zip(add)
+                    .zip(sub)
+                {
+                    *v = v.wrapping_add(a as u16).wrapping_sub(s as u16);
                 }
             }
             for d in 0..ndp {
