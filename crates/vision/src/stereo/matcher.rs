@@ -64,11 +64,29 @@ pub(super) const LANES: usize = 16;
 /// A census matcher with its buffers: [`StereoMatcher::compute`] gives the same disparities as
 /// [`super::block_match`] without allocating (or faulting in) its working memory on every
 /// call. Keep one per stream of equally sized pairs (the buffers are re-made when the image
-/// size or the parameters change).
-#[derive(Debug, Clone)]
+/// size changes). A clone has the same parameters and buffers of its own, made on its first
+/// call.
 pub struct StereoMatcher {
     params: StereoParams,
     buffers: Option<Buffers>,
+}
+
+impl Clone for StereoMatcher {
+    fn clone(&self) -> Self {
+        Self::new(self.params)
+    }
+}
+
+impl std::fmt::Debug for StereoMatcher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StereoMatcher")
+            .field("params", &self.params)
+            .field(
+                "buffers_for",
+                &self.buffers.as_ref().map(|b| (b.shape.w, b.shape.h)),
+            )
+            .finish()
+    }
 }
 
 impl StereoMatcher {
@@ -183,7 +201,6 @@ impl Shape {
 
 /// A zeroed buffer of `len` elements starting on a 32-byte boundary (so that the vectors of a
 /// `[x][d]` row, `ndp` elements apart, are aligned).
-#[derive(Debug, Clone)]
 struct Aligned<T> {
     buf: Vec<T>,
     off: usize,
@@ -214,7 +231,6 @@ impl<T: Copy + Default> Aligned<T> {
 pub(super) const RIGHT_WAYS: usize = 4;
 
 /// The working memory of one matcher (see the module documentation for the names).
-#[derive(Debug, Clone)]
 struct Buffers {
     shape: Shape,
     /// Both images with `c` columns replicated on either side and the top bit of every pixel

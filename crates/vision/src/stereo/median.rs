@@ -4,7 +4,7 @@ use crate::image::Image;
 
 /// Buffers of [`median3_valid_into`] (total-order keys and validity of every pixel, the median
 /// and count of one row).
-#[derive(Debug, Clone, Default)]
+#[derive(Default)]
 pub(super) struct MedianScratch {
     keys: Vec<u32>,
     valid: Vec<u8>,
