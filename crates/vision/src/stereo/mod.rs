@@ -428,6 +428,8 @@ mod tests {
             (150, 45, 79, 2, 2, 3, 0.05, 0.0, true),
             (71, 30, 15, 4, 2, 3, 0.0, 1.0, true),
             (66, 24, 11, 3, 2, 3, 0.0, 1.0, true),
+            (90, 20, 40, 1, 2, 3, 0.0, 1.0, true),
+            (60, 26, 20, 0, 0, 3, 0.0, 1.0, true),
         ];
         for (seed, (w, h, nd, br, sr, cr, uniq, lr, median)) in cases.into_iter().enumerate() {
             let right = random_texture(w + 5, h, seed as u64);
