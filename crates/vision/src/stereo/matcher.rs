@@ -27,25 +27,32 @@
 //! [`LANES`] = 16 (one 256-bit vector of `u16`), the padding lanes at cost 64: they can only
 //! tie with a real disparity, and ties go to the smaller `d`, so they never win.
 //!
-//! Per image row `y` (`y` running `s` rows ahead of the output row, for the vertical minimum):
+//! Per image row `y` (running `s` rows ahead of the output row, for the vertical minimum):
 //! 1. the census rows of both images as byte planes (plane `b` = bits `8b..8b+8` of every
-//!    pixel's word; the right image's reversed, so `R(x − d)` is contiguous in `d`), the pixel
-//!    costs of row `y + r` into a ring of `2r + 2` rows (`u8`), and the vertical sums `V`
-//!    updated in place (`+` the entering row, `−` the leaving one);
-//! 2. one loop over the columns, each step working on one pixel's `D` disparities in L1:
-//!    the block sum `A` of column `x + s` from its left neighbour's (`+` the entering column of
-//!    `V`, `−` the leaving one) into a ring of `2s + 1` columns, `H(y, x)` (the minimum of that
-//!    ring) into a ring of `2s + 1` rows, `M(y − s, x)` (the minimum of those rows), the left
-//!    winner of `x` (a minimum of `(M ≪ 16) | d` keys) and the right winners: a vector of
-//!    running minima whose lane `d` holds diagonal `x_r = x − d`, shifted up one lane per
-//!    column (a diagonal enters at lane 0 and leaves, complete, at the top), so the right
-//!    winners need no pass of their own and no memory writes that later loads overlap;
-//! 3. the left-right check of the row, and the median once the rows around it are done.
+//!    pixel's word; the right image's reversed, so that `R(x − d)` is contiguous in `d`) and
+//!    the pixel costs `C` of row `y + r` into a ring of `2r + 2` rows (`u8`);
+//! 2. one loop over the columns (`RowIo`, `row_scalar` / `avx2::row`), each step on one
+//!    pixel's disparities: `V(y, x + s + r)` updated in place (`+` the entering cost row, `−`
+//!    the leaving one) just before the block sum `A(y, x + s)` needs it (`+` that column of `V`,
+//!    `−` the leaving one, into a ring of `2s + 1` columns), `H(y, x)` (the minimum of that
+//!    ring) into a ring of `2s + 1` rows (stored column by column, so that a pixel's rows lie
+//!    together), `M(y − s, x)` (the minimum of those rows), kept for the row, the left key
+//!    `min_d (M ≪ 16) | d` (the first minimum) and the right winners: running `(cost, d)`
+//!    minima per diagonal `x_r = x − d`, lane `d` of column `x` at index `w − 1 − x + d` of one
+//!    of [`RIGHT_WAYS`] interleaved buffers (so no load waits on the stores of the column
+//!    before), merged at the end of the row;
+//! 3. the row's disparities (`decide_row`): the parabola through the costs beside the left
+//!    winner and the left-right check; the median once all rows are done.
 //!
-//! Memory is `O(w·D·(r + s))` (the two rings and `V`), kept in the [`StereoMatcher`] between
-//! calls, so a frame allocates nothing but its output. Census, costs and the column loop have
-//! AVX2 kernels (`avx2.rs`, chosen at run time); the scalar kernels here are their reference
-//! and give identical results (tested).
+//! The AVX2 kernels specialise the interior columns (every stage, no clamping; `2s + 1` and
+//! the padded disparity count known at compile time: constant offsets, unrolled chunks), and
+//! there, on rows with a new cost row, compute that row's costs in the column step itself
+//! (7×7 census), so the byte arithmetic of the costs and the loads of the aggregation share
+//! the column instead of a separate pass. The scalar kernels are the reference: same results
+//! on every path (tested against the volume-based computation).
+//!
+//! Memory is `O(w·D·(r + s))` (the rings, `V` and the output row's `M`), kept in the
+//! [`StereoMatcher`] between calls, so a frame allocates nothing but its output.
 //!
 //! [`census_transform`]: super::census_transform
 

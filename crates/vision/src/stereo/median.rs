@@ -61,6 +61,7 @@ pub(super) const SORT9: [(usize, usize); 25] = [
 /// border pixels go through [`median3_valid_pixel`]. Identical results.
 /// Inlined into the matcher's instances, so the AVX2 one compares with `vpminud`/`vpmaxud`
 /// (the baseline x86-64 build has no unsigned 32-bit min/max and emulates them).
+///
 /// Writes every pixel of `out` (the size of `d`); the key, validity and row buffers are
 /// `scratch`'s, kept by the caller so that nothing is allocated per call.
 #[inline(always)]
