@@ -130,7 +130,7 @@ unsafe fn costs_n<const P: usize>(
     out: &mut [u8],
     skip: std::ops::Range<usize>,
 ) {
-    assert!(ndp % LANES == 0 && nd <= ndp && ndp < nd + LANES);
+    assert!(ndp.is_multiple_of(LANES) && nd <= ndp && ndp < nd + LANES);
     assert!(lp.len() >= P * w && out.len() >= w * ndp + 16);
     assert!(P == 0 || (rs >= w + ndp + 16 && rp.len() >= (P - 1) * rs + w + ndp + 16));
     let b = nd.min(w);
@@ -540,7 +540,7 @@ pub(super) unsafe fn decide_row(io: DecideIo) {
     let Shape { w, nd, ndp, r, .. } = io.shape;
     assert!(io.left_key.len() >= w && io.dst.len() >= w);
     // The gathers read 32 bits at each 16-bit element.
-    assert!(io.block.len() >= w * ndp + 1 && io.right_best.len() >= w + 1);
+    assert!(io.block.len() > w * ndp && io.right_best.len() > w);
     assert!(w * ndp < i32::MAX as usize / 2);
     let w8 = w / 8 * 8;
     // SAFETY: gathered indices: x·ndp + max(d_L − 1, 0) and x·ndp + min(d_L + 1, ndp − 1)

@@ -680,7 +680,7 @@ impl RowIo<'_> {
     pub fn check(&self) {
         let sh = &self.shape;
         let (row, n, ndp) = (sh.row_len(), sh.n(), sh.ndp);
-        assert!(ndp % LANES == 0 && ndp >= LANES && sh.nd <= ndp && sh.w >= 1);
+        assert!(ndp.is_multiple_of(LANES) && ndp >= LANES && sh.nd <= ndp && sh.w >= 1);
         assert!(self.vsum.len() >= row && self.blocks.len() >= n * ndp);
         assert!(self.shifted.len() >= n * row && self.h_slot < n);
         if let Some((a, s)) = self.v_rows {
