@@ -660,6 +660,7 @@ pub(super) struct RowIo<'a> {
     pub h_slot: usize,
     /// `M` of the output row.
     pub block: &'a mut [u16],
+    /// `0, 1, …, ndp − 1` (the disparities of the lanes).
     pub lanes: &'a [u16],
     pub right_cost: &'a mut [u16],
     pub right_index: &'a mut [u16],
@@ -823,11 +824,10 @@ impl Step {
 /// One row pass (the module documentation's step 2), scalar: per column `x`, the vertical sums
 /// of column `x + s + r` updated, the block sums `A(x + s)` into their ring and `H(y, x)` (the
 /// ring's minimum) into the shift-minimum ring (`do_h`); then (`do_m`) `M(y − s, x)` (the
-/// minimum of that ring's rows) into `block`, the right winners' lanes (diagonal `x_r = x − d`
-/// in lane `d`) updated where `M` is strictly lower, and the left key
-/// `min_{d ≤ dmax} (M ≪ 16) | d` with the costs beside its winner (`left_key`, `below`,
-/// `above`; `u32::MAX` when there is no decision or the uniqueness test fails).
-/// `avx2::row` is the same with vectors.
+/// minimum of that ring's rows) into the output row's `block`, the right winners' lanes
+/// (diagonal `x_r = x − d` in lane `d`) updated where `M` is strictly lower, and the left key
+/// `min_{d ≤ dmax} (M ≪ 16) | d` (`u32::MAX` when there is no decision). `avx2::row` is the
+/// same with vectors.
 pub(super) fn row_scalar(mut io: RowIo) {
     io.check();
     io.prepare();
