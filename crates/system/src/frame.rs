@@ -11,7 +11,7 @@ use nalgebra::Vector3;
 use vision::fast::{Corner, fast9_level};
 use vision::image::{GrayImage, Image, ImageError};
 use vision::pyramid::Pyramid;
-use vision::stereo::{StereoParams, block_match, disparity_to_depth};
+use vision::stereo::{StereoMatcher, StereoParams, disparity_to_depth};
 
 /// Why a frame could not be prepared.
 #[derive(Debug, thiserror::Error)]
@@ -206,7 +206,8 @@ impl FrameData {
 pub struct SensorFrontEnd {
     camera: StereoCamera,
     kind: DepthSource,
-    stereo: StereoParams,
+    /// Block matching with its buffers kept from frame to frame.
+    stereo: StereoMatcher,
     fast_threshold: u8,
     levels: usize,
 }
@@ -234,11 +235,11 @@ impl SensorFrontEnd {
         Ok(SensorFrontEnd {
             camera,
             kind,
-            stereo: StereoParams {
+            stereo: StereoMatcher::new(StereoParams {
                 max_disparity: config.stereo.max_disparity_for(camera.pinhole.fx),
                 block_radius: config.stereo.block_radius,
                 ..StereoParams::default()
-            },
+            }),
             fast_threshold: config.tracker.fast_threshold,
             levels: config.tracker.pyramid_levels,
         })
@@ -269,7 +270,7 @@ impl SensorFrontEnd {
     }
 
     /// Prepares a frame: pyramid, FAST corners, depth.
-    pub fn prepare(&self, frame: Frame) -> Result<FrameData, FrameError> {
+    pub fn prepare(&mut self, frame: Frame) -> Result<FrameData, FrameError> {
         let Frame {
             index,
             timestamp,
@@ -278,7 +279,7 @@ impl SensorFrontEnd {
         } = frame;
         let (gray, depth, colour) = match (images, self.kind) {
             (FrameImages::Stereo { left, right }, DepthSource::BlockMatching) => {
-                let disparity = block_match(&left, &right, &self.stereo)?;
+                let disparity = self.stereo.compute(&left, &right)?;
                 let depth =
                     disparity_to_depth(&disparity, self.camera.pinhole.fx, self.camera.baseline);
                 (left, Some(depth), None)

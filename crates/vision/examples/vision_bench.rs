@@ -6,7 +6,8 @@
 //!   vision_bench fast IMG THRESH                 (corners of level 0, NMS)
 //!   vision_bench orb IMG NFEATURES
 //!   vision_bench lk IMG0 IMG1 POINTS.txt LEVELS  (points: "u v" per line; prints tracks)
-//!   vision_bench stereo LEFT RIGHT MAXDISP BLOCK OUT.f32
+//!   vision_bench stereo LEFT RIGHT MAXDISP BLOCK OUT.f32   (one StereoMatcher kept over the
+//!                                           repetitions)
 //!   vision_bench tvl1 IMG0 IMG1 OUT [ITERATIONS [WARPS]]
 //!                                           (writes OUT.du, OUT.dv as raw f32; default params
 //!                                           unless ITERATIONS / WARPS per warp are given)
@@ -154,9 +155,10 @@ fn main() {
                 block_radius: arg(5).parse::<usize>().expect("block") / 2,
                 ..Default::default()
             };
-            let (ms, d) = time_ms(3, || {
-                vision::stereo::block_match(&l, &r, &params).expect("stereo")
-            });
+            // One matcher for all repetitions, as a caller matching a stream of pairs keeps
+            // one (its buffers are made by the first call; each call allocates its output).
+            let mut matcher = vision::stereo::StereoMatcher::new(params);
+            let (ms, d) = time_ms(3, || matcher.compute(&l, &r).expect("stereo"));
             write_f32(&arg(6), &d);
             println!(
                 "{}",
