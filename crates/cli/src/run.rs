@@ -115,6 +115,7 @@ pub fn run(args: RunArgs) -> Result<()> {
             .parse::<BadFramePolicy>()
             .map_err(anyhow::Error::msg)?,
         require_depth: args.depth_frames_only,
+        no_depth: args.sensor.as_deref() == Some("mono"),
         ..OpenOptions::default()
     };
     let sequence = Sequence::open(&args.path, &options)?;

@@ -89,6 +89,25 @@ fn seven_scenes_reads_with_depth_in_millimetres_and_per_frame_ground_truth() {
     // Odd frames have no depth image (only even ones are shipped).
     let f1 = seq.read(1).unwrap().unwrap();
     assert!(matches!(f1.images, FrameImages::Rgbd { depth: None, .. }));
+    // A monocular run does not decode depth: the same frame 0 without it, the same grey image.
+    let mono = Sequence::open(
+        &dir,
+        &OpenOptions {
+            no_depth: true,
+            ..OpenOptions::default()
+        },
+    )
+    .unwrap();
+    let m0 = mono.read(0).unwrap().unwrap();
+    let FrameImages::Rgbd {
+        image: m_image,
+        depth: None,
+        ..
+    } = &m0.images
+    else {
+        panic!("no_depth delivered a depth image")
+    };
+    assert_eq!(m_image, image);
     assert!((f1.timestamp - 1.0 / 30.0).abs() < 1e-6);
 
     // Ground truth lines up: frame i carries pose/frame-i.pose.txt (camera-to-world 4×4),

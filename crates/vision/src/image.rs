@@ -308,8 +308,23 @@ pub fn load_rgb_planes(path: impl AsRef<Path>) -> Result<[GrayImage; 3], ImageEr
     let img = decode(path.as_ref())?.into_rgb8();
     let (w, h) = (img.width() as usize, img.height() as usize);
     let raw = img.into_raw();
-    let plane = |c: usize| Image::from_fn(w, h, |u, v| raw[(v * w + u) * 3 + c]);
-    Ok([plane(0), plane(1), plane(2)])
+    // One pass over the interleaved pixels (a per-pixel closure with index arithmetic took
+    // ~4 ms per 640×480 frame of the reader's time, on the core tracking shares).
+    let (mut r, mut g, mut b) = (
+        Vec::with_capacity(w * h),
+        Vec::with_capacity(w * h),
+        Vec::with_capacity(w * h),
+    );
+    for px in raw.chunks_exact(3) {
+        r.push(px[0]);
+        g.push(px[1]);
+        b.push(px[2]);
+    }
+    Ok([
+        Image::from_vec(w, h, w, r)?,
+        Image::from_vec(w, h, w, g)?,
+        Image::from_vec(w, h, w, b)?,
+    ])
 }
 
 #[cfg(test)]

@@ -30,10 +30,21 @@ pub(crate) struct Decoder {
 /// arithmetic), so that the grey image of a colour file equals `vision::image::load_gray_u8`.
 pub fn luma(planes: &RgbPlanes) -> GrayImage {
     let [r, g, b] = planes;
-    GrayImage::from_fn(r.width(), r.height(), |u, v| {
-        ((2126 * r.get(u, v) as u32 + 7152 * g.get(u, v) as u32 + 722 * b.get(u, v) as u32) / 10000)
-            as u8
-    })
+    let (w, h) = (r.width(), r.height());
+    // Row slices zipped (no per-pixel bounds checks): the reader converts every colour frame.
+    let mut data = Vec::with_capacity(w * h);
+    for v in 0..h {
+        data.extend(
+            r.row(v)
+                .iter()
+                .zip(g.row(v))
+                .zip(b.row(v))
+                .map(|((&r, &g), &b)| {
+                    ((2126 * r as u32 + 7152 * g as u32 + 722 * b as u32) / 10000) as u8
+                }),
+        );
+    }
+    GrayImage::from_vec(w, h, w, data).expect("a w×h buffer for a w×h image")
 }
 
 /// A decoder error: a read that ended early is a truncated image, other I/O errors are I/O.

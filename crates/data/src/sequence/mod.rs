@@ -123,6 +123,10 @@ pub struct OpenOptions {
     /// RGB-D: drop frames without an associated depth image (by default they are delivered
     /// with `depth: None`).
     pub require_depth: bool,
+    /// RGB-D: do not decode the depth images (frames are delivered with `depth: None`; a
+    /// monocular run of an RGB-D sequence, whose reader would otherwise decode a 16-bit PNG per
+    /// frame for nothing).
+    pub no_depth: bool,
 }
 
 /// A depth image with its encoding.
@@ -463,6 +467,13 @@ impl Sequence {
                     "{} frames without an associated depth image were dropped",
                     before - opened.frames.len()
                 ));
+            }
+        }
+        if options.no_depth {
+            for f in &mut opened.frames {
+                if let FrameFiles::Rgbd(_, depth) = &mut f.files {
+                    *depth = None;
+                }
             }
         }
         let decoder = Decoder::new(
