@@ -7,7 +7,7 @@ use crate::frame::CornerIndex;
 use crate::keyframes::KeyframeImages;
 use geom::PinholeCamera;
 use lie::{LieGroup, Se3};
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Matrix2, Vector2, Vector3};
 use slam::map::{KeyframeId, PointId, SlamGraph};
 use vision::fast::Corner;
 use vision::image::GrayImage;
@@ -105,16 +105,12 @@ pub fn search(
     min_ncc: f32,
     scratch: &mut SearchScratch,
 ) -> Option<Vector2<f64>> {
-    let cur_from_anchor = camera_from_world.compose(&point.anchor_from_world.inverse());
-    let (predicted, warp) = affine_from_pose(
-        camera,
-        camera,
-        &point.anchor_pixel,
-        point.anchor_depth,
-        &cur_from_anchor,
-    )?;
+    let WarpedTemplate {
+        predicted,
+        warp,
+        template,
+    } = WarpedTemplate::new(camera, camera_from_world, point, anchor)?;
     let (ua, va) = (point.anchor_pixel.x as f32, point.anchor_pixel.y as f32);
-    let template = Patch::extract_warped(&anchor.gray, ua, va, &warp)?;
     corners.within(
         predicted.x as f32,
         predicted.y as f32,
@@ -150,6 +146,39 @@ pub fn search(
     (nssd(&template, &p) <= max_nssd).then(|| Vector2::new(refined[0] as f64, refined[1] as f64))
 }
 
+/// A map point's template as a camera at `camera_from_world` sees it: its predicted pixel,
+/// the affine warp from the anchor keyframe, and the anchor's patch warped by it.
+struct WarpedTemplate {
+    predicted: Vector2<f64>,
+    warp: Matrix2<f64>,
+    template: Patch,
+}
+
+impl WarpedTemplate {
+    fn new(
+        camera: &PinholeCamera,
+        camera_from_world: &Se3,
+        point: &SearchPoint,
+        anchor: &KeyframeImages,
+    ) -> Option<WarpedTemplate> {
+        let cur_from_anchor = camera_from_world.compose(&point.anchor_from_world.inverse());
+        let (predicted, warp) = affine_from_pose(
+            camera,
+            camera,
+            &point.anchor_pixel,
+            point.anchor_depth,
+            &cur_from_anchor,
+        )?;
+        let (ua, va) = (point.anchor_pixel.x as f32, point.anchor_pixel.y as f32);
+        let template = Patch::extract_warped(&anchor.gray, ua, va, &warp)?;
+        Some(WarpedTemplate {
+            predicted,
+            warp,
+            template,
+        })
+    }
+}
+
 /// Re-locates `point` near `at`, where a corner track measures it: its template, warped from
 /// the anchor keyframe by the pose `camera_from_world` (a prediction is enough for the warp),
 /// is aligned to `image` from `at` to sub-pixel accuracy. The aligned position if it moved at
@@ -170,16 +199,9 @@ pub fn relocate(
     max_shift: f64,
     min_ncc: f32,
 ) -> Option<Vector2<f64>> {
-    let cur_from_anchor = camera_from_world.compose(&point.anchor_from_world.inverse());
-    let (_, warp) = affine_from_pose(
-        camera,
-        camera,
-        &point.anchor_pixel,
-        point.anchor_depth,
-        &cur_from_anchor,
-    )?;
+    let WarpedTemplate { warp, template, .. } =
+        WarpedTemplate::new(camera, camera_from_world, point, anchor)?;
     let (ua, va) = (point.anchor_pixel.x as f32, point.anchor_pixel.y as f32);
-    let template = Patch::extract_warped(&anchor.gray, ua, va, &warp)?;
     let tg = template_with_gradient(&anchor.gray, ua, va, &warp)?;
     let refined = refine_subpixel(&tg, image, [at.x as f32, at.y as f32], 10)?;
     let moved = Vector2::new(refined[0] as f64, refined[1] as f64);
