@@ -210,6 +210,130 @@ fn residual_dot<const AVX2: bool>(cur: &[f32], tmpl: &[f32], gx: &[f32], gy: &[f
     (bx, by)
 }
 
+/// The template (the centre `n×n` of the `(n+2)²` window `big`) and its central-difference
+/// gradients, row by row. Every value is `t = m[x+1]`, `gx = 0.5·(m[x+2] − m[x])`,
+/// `gy = 0.5·(d[x+1] − u[x+1])` on both paths, so the AVX2 kernel (eight columns per step, the
+/// last step of a row overlapping the previous one) gives the scalar values bit for bit. Written
+/// out because the compiler left the slice version scalar: a third of the tracker's time was
+/// this loop (perf on 7-Scenes mono).
+#[inline(always)]
+fn template_gradients<const AVX2: bool>(
+    big: &[f32],
+    n: usize,
+    tmpl: &mut [f32],
+    gx: &mut [f32],
+    gy: &mut [f32],
+) {
+    let nb = n + 2;
+    assert!(big.len() >= nb * nb && tmpl.len() >= n * n && gx.len() >= n * n && gy.len() >= n * n);
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 && n >= 8 {
+        use std::arch::x86_64::*;
+        // SAFETY: AVX2 instances run only after `simd::avx2()`. Row y reads big[(y + j)·nb + i
+        // .. + 8] for j ≤ 2, i ≤ n − 8 + 2 = nb − 8, inside row y + j < nb of big (asserted
+        // length nb²); writes [y·n + x0 .. + 8] with x0 ≤ n − 8, inside the n² outputs.
+        unsafe {
+            let half = _mm256_set1_ps(0.5);
+            let b = big.as_ptr();
+            for y in 0..n {
+                let (up, mid, down) = (b.add(y * nb), b.add((y + 1) * nb), b.add((y + 2) * nb));
+                let mut x = 0;
+                loop {
+                    let x0 = x.min(n - 8);
+                    let o = y * n + x0;
+                    _mm256_storeu_ps(tmpl.as_mut_ptr().add(o), _mm256_loadu_ps(mid.add(x0 + 1)));
+                    let dx = _mm256_sub_ps(
+                        _mm256_loadu_ps(mid.add(x0 + 2)),
+                        _mm256_loadu_ps(mid.add(x0)),
+                    );
+                    _mm256_storeu_ps(gx.as_mut_ptr().add(o), _mm256_mul_ps(half, dx));
+                    let dy = _mm256_sub_ps(
+                        _mm256_loadu_ps(down.add(x0 + 1)),
+                        _mm256_loadu_ps(up.add(x0 + 1)),
+                    );
+                    _mm256_storeu_ps(gy.as_mut_ptr().add(o), _mm256_mul_ps(half, dy));
+                    x = x0 + 8;
+                    if x >= n {
+                        break;
+                    }
+                }
+            }
+        }
+        return;
+    }
+    for y in 0..n {
+        let (up, mid, down) = (
+            &big[y * nb..(y + 1) * nb],
+            &big[(y + 1) * nb..(y + 2) * nb],
+            &big[(y + 2) * nb..(y + 3) * nb],
+        );
+        let t = &mut tmpl[y * n..(y + 1) * n];
+        let gxr = &mut gx[y * n..(y + 1) * n];
+        let gyr = &mut gy[y * n..(y + 1) * n];
+        for x in 0..n {
+            t[x] = mid[x + 1];
+            gxr[x] = 0.5 * (mid[x + 2] - mid[x]);
+            gyr[x] = 0.5 * (down[x + 1] - up[x + 1]);
+        }
+    }
+}
+
+/// The structure tensor `Σ ∇T ∇Tᵀ` as `(hxx, hxy, hyy)`, with 8 lane-wise partial sums (lane
+/// `i` accumulates elements `i, i + 8, …`), the lanes summed in order and the remainder added:
+/// the same order on both paths (bit for bit, as [`residual_dot`]).
+#[inline(always)]
+fn structure_tensor<const AVX2: bool>(gx: &[f32], gy: &[f32]) -> (f32, f32, f32) {
+    const L: usize = 8;
+    let len = gx.len();
+    assert!(gy.len() == len);
+    let full = len / L * L;
+    let (mut axx, mut axy, mut ayy) = ([0.0f32; L], [0.0f32; L], [0.0f32; L]);
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        use std::arch::x86_64::*;
+        // SAFETY: AVX2 instances run only after `simd::avx2()`; loads read k..k+8 ≤ full ≤ len
+        // of two slices of length len (asserted above).
+        unsafe {
+            let (mut vxx, mut vxy, mut vyy) = (
+                _mm256_setzero_ps(),
+                _mm256_setzero_ps(),
+                _mm256_setzero_ps(),
+            );
+            for k in (0..full).step_by(L) {
+                let x = _mm256_loadu_ps(gx.as_ptr().add(k));
+                let y = _mm256_loadu_ps(gy.as_ptr().add(k));
+                vxx = _mm256_add_ps(vxx, _mm256_mul_ps(x, x));
+                vxy = _mm256_add_ps(vxy, _mm256_mul_ps(x, y));
+                vyy = _mm256_add_ps(vyy, _mm256_mul_ps(y, y));
+            }
+            _mm256_storeu_ps(axx.as_mut_ptr(), vxx);
+            _mm256_storeu_ps(axy.as_mut_ptr(), vxy);
+            _mm256_storeu_ps(ayy.as_mut_ptr(), vyy);
+        }
+    }
+    if !(cfg!(target_arch = "x86_64") && AVX2) {
+        for (x, y) in gx[..full].chunks_exact(L).zip(gy[..full].chunks_exact(L)) {
+            for i in 0..L {
+                axx[i] += x[i] * x[i];
+                axy[i] += x[i] * y[i];
+                ayy[i] += y[i] * y[i];
+            }
+        }
+    }
+    let (mut hxx, mut hxy, mut hyy) = (
+        axx.iter().sum::<f32>(),
+        axy.iter().sum::<f32>(),
+        ayy.iter().sum::<f32>(),
+    );
+    for i in full..len {
+        let (x, y) = (gx[i], gy[i]);
+        hxx += x * x;
+        hxy += x * y;
+        hyy += y * y;
+    }
+    (hxx, hxy, hyy)
+}
+
 /// Scratch buffers for one point.
 struct Work {
     big: Vec<f32>,
@@ -256,50 +380,8 @@ fn track_level<const AVX2: bool>(
         &mut wk.big,
         &mut wk.block,
     );
-    // Template and central-difference gradients, row by row (vectorisable), then the
-    // structure tensor with lane-wise accumulators (the same order on every path).
-    for y in 0..n {
-        let (up, mid, down) = (
-            &wk.big[y * nb..(y + 1) * nb],
-            &wk.big[(y + 1) * nb..(y + 2) * nb],
-            &wk.big[(y + 2) * nb..(y + 3) * nb],
-        );
-        let t = &mut wk.tmpl[y * n..(y + 1) * n];
-        let gxr = &mut wk.gx[y * n..(y + 1) * n];
-        let gyr = &mut wk.gy[y * n..(y + 1) * n];
-        for x in 0..n {
-            t[x] = mid[x + 1];
-            gxr[x] = 0.5 * (mid[x + 2] - mid[x]);
-            gyr[x] = 0.5 * (down[x + 1] - up[x + 1]);
-        }
-    }
-    let (hxx, hxy, hyy) = {
-        const L: usize = 8;
-        let (mut axx, mut axy, mut ayy) = ([0.0f32; L], [0.0f32; L], [0.0f32; L]);
-        let full = n * n / L * L;
-        for (gx, gy) in wk.gx[..full]
-            .chunks_exact(L)
-            .zip(wk.gy[..full].chunks_exact(L))
-        {
-            for i in 0..L {
-                axx[i] += gx[i] * gx[i];
-                axy[i] += gx[i] * gy[i];
-                ayy[i] += gy[i] * gy[i];
-            }
-        }
-        let (mut hxx, mut hxy, mut hyy) = (
-            axx.iter().sum::<f32>(),
-            axy.iter().sum::<f32>(),
-            ayy.iter().sum::<f32>(),
-        );
-        for i in full..n * n {
-            let (gx, gy) = (wk.gx[i], wk.gy[i]);
-            hxx += gx * gx;
-            hxy += gx * gy;
-            hyy += gy * gy;
-        }
-        (hxx, hxy, hyy)
-    };
+    template_gradients::<AVX2>(&wk.big, n, &mut wk.tmpl, &mut wk.gx, &mut wk.gy);
+    let (hxx, hxy, hyy) = structure_tensor::<AVX2>(&wk.gx, &wk.gy);
     let npx = (n * n) as f32;
     let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt()) / npx;
     let det = hxx * hyy - hxy * hxy;
