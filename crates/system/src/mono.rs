@@ -357,6 +357,43 @@ fn loop_within_drift(
     (implied - centre(&t_k)).norm() <= MAX_DRIFT_FRACTION * path
 }
 
+/// The keyframes topologically close to `k`, never a loop's old place (thesis §6.4.2): the
+/// last `recent` keyframes and every keyframe covisible with `k`, sharing at least `theta`
+/// points (the graph's sense of connected, as the stereo system's edges). A handful of shared
+/// points does not close a loop: after a drifted revisit the guided search finds a few of the
+/// old place's points from the drifted pose, too few to hold the map, and excluding every
+/// keyframe that shares one of them hid the old place from detection for the rest of the
+/// revisit (rendered building, 2026-12-02: the last 45 keyframes shared 1–10 points each with
+/// the first ones, and no loop was detected after the first three).
+fn topologically_close(
+    graph: &SlamGraph<2>,
+    k: KeyframeId,
+    theta: usize,
+    recent: usize,
+) -> BTreeSet<KeyframeId> {
+    let mut close: BTreeSet<KeyframeId> = crate::loops::recent_keyframes(k, recent).collect();
+    let mut shared: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
+    if let Some(kf) = graph.keyframe(k) {
+        for p in kf.observations().keys() {
+            for &o in graph
+                .point(*p)
+                .map(|pt| pt.observers())
+                .into_iter()
+                .flatten()
+            {
+                *shared.entry(o).or_default() += 1;
+            }
+        }
+    }
+    close.extend(
+        shared
+            .into_iter()
+            .filter(|&(o, n)| o != k && n >= theta)
+            .map(|(o, _)| o),
+    );
+    close
+}
+
 /// The accepted loops as edges of the keyframe chain (thesis §5.3.2).
 fn loop_edges(detections: &[LoopDetection]) -> Vec<LoopEdge> {
     detections
@@ -585,16 +622,12 @@ impl MonoSystem {
                 .push(format!("place recognition at frame {frame}: {e}"));
             return;
         }
-        // Topologically close: the last keyframes and every keyframe sharing a point with k.
-        let mut excluded: BTreeSet<KeyframeId> =
-            crate::loops::recent_keyframes(k, self.config.loops.exclusion_recent).collect();
-        if let Some(kf) = map.graph.keyframe(k) {
-            for p in kf.observations().keys() {
-                if let Some(pt) = map.graph.point(*p) {
-                    excluded.extend(pt.observers().iter().copied());
-                }
-            }
-        }
+        let excluded = topologically_close(
+            &map.graph,
+            k,
+            self.config.mapping.theta,
+            self.config.loops.exclusion_recent,
+        );
         let mut accepted_now = false;
         match loops.place.detect(k, &excluded) {
             Ok(Some(c)) if !loop_within_drift(&map.graph, c.old, k, &c.query_from_old) => {
@@ -1258,6 +1291,28 @@ mod tests {
                 .unwrap();
         }
         g
+    }
+
+    #[test]
+    fn only_covisible_and_recent_keyframes_are_topologically_close() {
+        let mut g = corridor(31);
+        let id = KeyframeId::from_index;
+        let z = Vector2::new(320.0, 240.0);
+        // Keyframe 30 measures 25 points of keyframe 15 (covisible, θ = 20) and 3 of keyframe
+        // 2 (a drifted revisit's few re-found points).
+        for (old, n) in [(15, 25), (2, 3)] {
+            for _ in 0..n {
+                let p = g
+                    .add_point(id(old), Vector3::new(0.0, 0.0, 0.2), z)
+                    .unwrap();
+                g.add_observation(id(30), p, z).unwrap();
+            }
+        }
+        let close = topologically_close(&g, id(30), 20, 10);
+        let expected: BTreeSet<KeyframeId> = (20..=30).chain([15]).map(id).collect();
+        assert_eq!(close, expected);
+        // With θ = 3 the revisit's keyframe counts as connected.
+        assert!(topologically_close(&g, id(30), 3, 10).contains(&id(2)));
     }
 
     #[test]
