@@ -337,24 +337,6 @@ fn match_impl(
     ratio: f32,
     cross_check: bool,
 ) -> Vec<DMatch> {
-    let nearest = |a: &[Descriptor], b: &[Descriptor]| -> Vec<(usize, u32, u32)> {
-        a.iter()
-            .map(|q| {
-                let (mut bi, mut b1, mut b2) = (usize::MAX, u32::MAX, u32::MAX);
-                for (j, t) in b.iter().enumerate() {
-                    let d = hamming(q, t);
-                    if d < b1 {
-                        b2 = b1;
-                        b1 = d;
-                        bi = j;
-                    } else if d < b2 {
-                        b2 = d;
-                    }
-                }
-                (bi, b1, b2)
-            })
-            .collect()
-    };
     let fwd = nearest(query, train);
     let back = if cross_check {
         nearest(train, query)
@@ -380,6 +362,30 @@ fn match_impl(
             })
         })
         .collect()
+}
+
+/// For each descriptor of `a`, the index of its nearest in `b` and the two smallest distances.
+/// Plain loops, no closures or iterator adaptors: `#[inline(always)]` then puts the Hamming
+/// distances inside [`match_popcnt`]'s POPCNT instance (as a `map(..).collect()` they were
+/// compiled in the generic `Vec::from_iter`, without POPCNT: 5 % of a 7-Scenes mono run).
+#[inline(always)]
+fn nearest(a: &[Descriptor], b: &[Descriptor]) -> Vec<(usize, u32, u32)> {
+    let mut out = Vec::with_capacity(a.len());
+    for q in a {
+        let (mut bi, mut b1, mut b2) = (usize::MAX, u32::MAX, u32::MAX);
+        for (j, t) in b.iter().enumerate() {
+            let d = hamming(q, t);
+            if d < b1 {
+                b2 = b1;
+                b1 = d;
+                bi = j;
+            } else if d < b2 {
+                b2 = d;
+            }
+        }
+        out.push((bi, b1, b2));
+    }
+    out
 }
 
 #[cfg(test)]
