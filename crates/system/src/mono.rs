@@ -357,6 +357,26 @@ fn loop_within_drift(
     (implied - centre(&t_k)).norm() <= MAX_DRIFT_FRACTION * path
 }
 
+/// For every keyframe sharing map points with `k` (`k` included), how many. The monocular
+/// explorer adds no graph edges outside its double-window mode, so the covisibility weights
+/// are counted from the points' observers here rather than read from `SlamGraph`'s edges.
+fn shared_points(
+    graph: &SlamGraph<2>,
+    k: KeyframeId,
+) -> std::collections::BTreeMap<KeyframeId, usize> {
+    let mut shared: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
+    if let Some(kf) = graph.keyframe(k) {
+        for p in kf.observations().keys() {
+            if let Some(pt) = graph.point(*p) {
+                for &o in pt.observers() {
+                    *shared.entry(o).or_default() += 1;
+                }
+            }
+        }
+    }
+    shared
+}
+
 /// The keyframes topologically close to `k`, never a loop's old place (thesis §6.4.2): the
 /// last `recent` keyframes and every keyframe covisible with `k`, sharing at least `theta`
 /// points (the graph's sense of connected, as the stereo system's edges). A handful of shared
@@ -372,21 +392,8 @@ fn topologically_close(
     recent: usize,
 ) -> BTreeSet<KeyframeId> {
     let mut close: BTreeSet<KeyframeId> = crate::loops::recent_keyframes(k, recent).collect();
-    let mut shared: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
-    if let Some(kf) = graph.keyframe(k) {
-        for p in kf.observations().keys() {
-            for &o in graph
-                .point(*p)
-                .map(|pt| pt.observers())
-                .into_iter()
-                .flatten()
-            {
-                *shared.entry(o).or_default() += 1;
-            }
-        }
-    }
     close.extend(
-        shared
+        shared_points(graph, k)
             .into_iter()
             .filter(|&(o, n)| o != k && n >= theta)
             .map(|(o, _)| o),
@@ -453,18 +460,10 @@ fn covisible_neighbourhood(
     let mut queue = std::collections::VecDeque::from([last]);
     seen.insert(last);
     while let Some(k) = queue.pop_front() {
-        let Some(kf) = graph.keyframe(k) else {
+        if graph.keyframe(k).is_none() {
             continue;
-        };
-        let mut shared: std::collections::BTreeMap<KeyframeId, usize> = Default::default();
-        for p in kf.observations().keys() {
-            if let Some(pt) = graph.point(*p) {
-                for &o in pt.observers() {
-                    *shared.entry(o).or_default() += 1;
-                }
-            }
         }
-        let mut next: Vec<(usize, KeyframeId)> = shared
+        let mut next: Vec<(usize, KeyframeId)> = shared_points(graph, k)
             .into_iter()
             .filter(|&(o, n)| o != k && n >= theta)
             .map(|(o, n)| (n, o))
