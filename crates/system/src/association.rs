@@ -97,8 +97,7 @@ fn stereo_measurement(
     u: Vector2<f64>,
     min_disparity: f64,
 ) -> Option<Vector3<f64>> {
-    let d = frame.depth_at(u.x, u.y)?;
-    let z = sensor.measurement(u.x, u.y, d);
+    let z = frame.stereo_measurement(u, sensor.camera())?;
     (z.x - z.z >= min_disparity).then_some(z)
 }
 

@@ -7,11 +7,11 @@ use data::camera::SensorModel;
 use data::sequence::{Frame, FrameImages, RgbPlanes};
 use geom::{PinholeCamera, StereoCamera};
 use lie::Se3;
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 use vision::fast::{Corner, fast9_level};
 use vision::image::{GrayImage, Image, ImageError};
 use vision::pyramid::Pyramid;
-use vision::stereo::{StereoMatcher, StereoParams, disparity_to_depth};
+use vision::stereo::{StereoMatcher, StereoParams, disparity_to_depth, point_disparity};
 
 /// Why a frame could not be prepared.
 #[derive(Debug, thiserror::Error)]
@@ -172,6 +172,9 @@ pub struct FrameData {
     pub depth: Option<Image<f32>>,
     /// Colour planes, where the images have colour.
     pub colour: Option<RgbPlanes>,
+    /// The right image of a stereo pair (level 0), where each point's disparity is measured
+    /// ([`FrameData::stereo_measurement`]); `None` for RGB-D frames.
+    pub right: Option<GrayImage>,
     /// Ground truth `world_from_camera`, if the dataset has it.
     pub ground_truth: Option<Se3>,
 }
@@ -198,7 +201,43 @@ impl FrameData {
             DEPTH_AGREEMENT as f64,
         )
     }
+
+    /// The stereo measurement `(u, v, u_r)` of pixel `u` with `camera`, where the frame has a
+    /// depth there ([`FrameData::depth_at`]). For a stereo pair the disparity is then measured
+    /// at the point itself ([`point_disparity`]: the left image's 8×8 patch around `u` aligned
+    /// along the row of the right image, the disparity map's value as the start), the patch
+    /// the tracker matches in the left image: both coordinates measure the same feature.
+    ///
+    /// Why not the disparity map's value: block matching aggregates a 7×7 census over 9×9
+    /// blocks at the nearest pixel, and a corner lies on an object's boundary more often than
+    /// not, where that support takes in the surface behind. `None` where the patch does not
+    /// align within [`POINT_DISPARITY_MAX_STEP`] of the map's disparity (the two supports see
+    /// different surfaces).
+    pub fn stereo_measurement(
+        &self,
+        u: Vector2<f64>,
+        camera: &StereoCamera,
+    ) -> Option<Vector3<f64>> {
+        let z = self.depth_at(u.x, u.y)?;
+        let d = camera.pinhole.fx * camera.baseline / z;
+        let d = match &self.right {
+            Some(right) => point_disparity(
+                self.gray(),
+                right,
+                u.x as f32,
+                u.y as f32,
+                d as f32,
+                POINT_DISPARITY_MAX_STEP,
+            )? as f64,
+            None => d,
+        };
+        Some(Vector3::new(u.x, u.y, u.x - d))
+    }
 }
+
+/// Largest change of a point's disparity from the disparity map's (pixels): the block
+/// matcher's own left-right tolerance.
+pub const POINT_DISPARITY_MAX_STEP: f32 = 1.0;
 
 /// The sensor of a live run: its camera (for RGB-D the virtual stereo camera, thesis §6.5.3)
 /// and how it gets depth.
@@ -277,12 +316,12 @@ impl SensorFrontEnd {
             images,
             world_from_camera,
         } = frame;
-        let (gray, depth, colour) = match (images, self.kind) {
+        let (gray, depth, colour, right) = match (images, self.kind) {
             (FrameImages::Stereo { left, right }, DepthSource::BlockMatching) => {
                 let disparity = self.stereo.compute(&left, &right)?;
                 let depth =
                     disparity_to_depth(&disparity, self.camera.pinhole.fx, self.camera.baseline);
-                (left, Some(depth), None)
+                (left, Some(depth), None, Some(right))
             }
             (
                 FrameImages::Rgbd {
@@ -291,7 +330,7 @@ impl SensorFrontEnd {
                     depth,
                 },
                 DepthSource::DepthImage,
-            ) => (image, depth.map(|d| d.to_metres()), colour),
+            ) => (image, depth.map(|d| d.to_metres()), colour, None),
             (other, _) => {
                 return Err(FrameError::Sensor {
                     index,
@@ -320,6 +359,7 @@ impl SensorFrontEnd {
             pyramid,
             depth,
             colour,
+            right,
             ground_truth: world_from_camera,
         })
     }

@@ -246,13 +246,7 @@ impl Tracker {
         let in_ref = |i: usize| t_ref.act(&points[i].world);
         let stereo: Vec<(usize, Vector3<f64>)> = found
             .iter()
-            .filter_map(|(i, u)| {
-                let d = frame.depth_at(u.x, u.y)?;
-                Some((
-                    *i,
-                    Vector3::new(u.x, u.y, u.x - camera.fx * self.camera.baseline / d),
-                ))
-            })
+            .filter_map(|(i, u)| Some((*i, frame.stereo_measurement(*u, &self.camera)?)))
             .collect();
         let options = MotionOnlyOptions {
             min_matches: 6,

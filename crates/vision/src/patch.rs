@@ -231,6 +231,37 @@ pub fn refine_subpixel(
     Some(c)
 }
 
+/// [`refine_subpixel`] along the row only (`v` fixed at `start[1]`): the match of a template on
+/// the epipolar line of a rectified stereo pair. Minimises the same zero-mean residual over
+/// `u` alone; returns the refined `u`, or `None` if the patch leaves the image, the template
+/// has no horizontal gradient, or `u` moves more than `max_step` pixels from `start[0]`.
+pub fn refine_along_row(
+    tg: &TemplateWithGradient,
+    img: &GrayImage,
+    start: [f32; 2],
+    iterations: usize,
+    max_step: f32,
+) -> Option<f32> {
+    let hxx = lane_sum(|k| tg.gx[k] * tg.gx[k]);
+    if hxx <= 1e-6 {
+        return None;
+    }
+    let mut u = start[0];
+    for _ in 0..iterations {
+        let p = Patch::extract(img, u, start[1])?;
+        let (bx, _) = gradient_dot(tg, &p);
+        let du = bx / hxx;
+        u -= du;
+        if (u - start[0]).abs() > max_step {
+            return None;
+        }
+        if du * du < 1e-6 {
+            break;
+        }
+    }
+    Some(u)
+}
+
 /// `b = Σ ∇T·e` with `e = (I − Ī) − (T − T̄)` over the samples, in lanes (see `lane_sum`).
 fn gradient_dot(tg: &TemplateWithGradient, p: &Patch) -> (f32, f32) {
     dispatch_avx2!(
@@ -372,6 +403,40 @@ mod tests {
     }
 
     #[test]
+    fn row_refinement_finds_a_horizontal_shift_and_keeps_v() {
+        // A rectified pair: the right image is the left one moved by a disparity of 3.37 px.
+        let left = texture(120, 100, |x, y| (x, y));
+        let right = texture(120, 100, |x, y| (x + 3.37, y));
+        let (mut ok, mut tried) = (0, 0);
+        for c in fast9(&left, 15, true)
+            .iter()
+            .filter(|c| c.u > 15.0 && c.v > 15.0 && c.u < 105.0 && c.v < 85.0)
+        {
+            tried += 1;
+            let tg = template_with_gradient(&left, c.u, c.v, &Matrix2::identity()).unwrap();
+            // From the integer disparity 3 (a block matcher's winner).
+            if let Some(u_r) = refine_along_row(&tg, &right, [c.u - 3.0, c.v], 10, 1.0)
+                && (c.u - u_r - 3.37).abs() < 0.05
+            {
+                ok += 1;
+            }
+            // A start more than the allowed step away is refused, not followed.
+            assert_eq!(
+                refine_along_row(&tg, &right, [c.u - 3.0, c.v], 10, 0.2),
+                None
+            );
+        }
+        assert!(
+            tried >= 10 && ok as f32 >= 0.9 * tried as f32,
+            "{ok}/{tried}"
+        );
+        // No horizontal gradient (horizontal stripes): no disparity.
+        let stripes = GrayImage::from_fn(40, 40, |_, v| if v % 4 < 2 { 50 } else { 200 });
+        let tg = template_with_gradient(&stripes, 20.0, 20.0, &Matrix2::identity()).unwrap();
+        assert_eq!(refine_along_row(&tg, &stripes, [18.0, 20.0], 10, 1.0), None);
+    }
+
+    #[test]
     fn simd_and_scalar_paths_agree_bit_for_bit() {
         // Every kernel of the guided search on both paths: templates (plain, warped, with
         // gradient), NSSD, ZMSSD and the sub-pixel refinement, at sub-pixel positions over a
@@ -401,14 +466,18 @@ mod tests {
                 let refined = tg
                     .as_ref()
                     .and_then(|tg| refine_subpixel(tg, &b, [u + 1.0, v - 1.0], 10));
+                let along_row = tg
+                    .as_ref()
+                    .and_then(|tg| refine_along_row(tg, &b, [u + 1.0, v - 0.8], 10, 2.0));
                 let bits = |x: &[f32]| x.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 out.push(format!(
-                    "{:?} {:?} {:?} {:?} {:?}",
+                    "{:?} {:?} {:?} {:?} {:?} {:?}",
                     t.map(|t| (bits(&t.data), t.mean.to_bits())),
                     p.map(|p| bits(&p.data)),
                     tg.map(|g| (bits(&g.gx), bits(&g.gy), bits(&g.patch.data))),
                     scores,
                     refined.map(|r| bits(&r)),
+                    along_row.map(f32::to_bits),
                 ));
             }
             out

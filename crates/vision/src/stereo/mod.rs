@@ -18,6 +18,28 @@ mod median;
 pub use matcher::StereoMatcher;
 
 use crate::image::{GrayImage, Image, ImageError};
+use crate::patch::{refine_along_row, template_with_gradient};
+
+/// The disparity of one point of the left image at `(u, v)`: its 8×8 patch
+/// ([`crate::patch`]) aligned along the same row of the right image, starting from disparity
+/// `start` (the block matcher's, say). The support is the point's own patch rather than the
+/// block matcher's 15×15 (a 7×7 census over 9×9 blocks), which at a corner on an object's
+/// boundary takes in the surface behind it. `None` where the patch leaves either image, has no
+/// horizontal gradient, or does not align within `max_step` pixels of `start`.
+pub fn point_disparity(
+    left: &GrayImage,
+    right: &GrayImage,
+    u: f32,
+    v: f32,
+    start: f32,
+    max_step: f32,
+) -> Option<f32> {
+    /// Gauss-Newton steps: the start is within a pixel, where a few steps converge.
+    const ITERATIONS: usize = 10;
+    let template = template_with_gradient(left, u, v, &nalgebra::Matrix2::identity())?;
+    let u_r = refine_along_row(&template, right, [u - start, v], ITERATIONS, max_step)?;
+    Some(u - u_r)
+}
 
 /// Parameters of [`block_match`].
 #[derive(Debug, Clone, Copy, PartialEq)]
