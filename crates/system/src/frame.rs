@@ -10,7 +10,7 @@ use lie::Se3;
 use nalgebra::{Vector2, Vector3};
 use vision::fast::{Corner, fast9_level};
 use vision::image::{GrayImage, Image, ImageError};
-use vision::pyramid::Pyramid;
+use vision::pyramid::{Pyramid, half_sample};
 use vision::stereo::{StereoMatcher, StereoParams, disparity_to_depth, point_disparity};
 
 /// Why a frame could not be prepared.
@@ -247,6 +247,8 @@ pub struct SensorFrontEnd {
     kind: DepthSource,
     /// Block matching with its buffers kept from frame to frame.
     stereo: StereoMatcher,
+    /// The pyramid level block matching runs at.
+    stereo_level: usize,
     fast_threshold: u8,
     levels: usize,
 }
@@ -274,8 +276,13 @@ impl SensorFrontEnd {
         Ok(SensorFrontEnd {
             camera,
             kind,
+            stereo_level: config.stereo.level,
             stereo: StereoMatcher::new(StereoParams {
-                max_disparity: config.stereo.max_disparity_for(camera.pinhole.fx),
+                // The same depth range at every level: the full-resolution disparities scaled.
+                max_disparity: config
+                    .stereo
+                    .max_disparity_for(camera.pinhole.fx)
+                    .div_ceil(1 << config.stereo.level),
                 block_radius: config.stereo.block_radius,
                 ..StereoParams::default()
             }),
@@ -308,6 +315,39 @@ impl SensorFrontEnd {
         )
     }
 
+    /// The depth of a stereo frame at level 0, block-matched at `stereo_level` (the left
+    /// image's pyramid level, the right image half-sampled alike), each level-0 pixel taking the
+    /// depth of the level pixel it lies in.
+    fn stereo_depth(
+        &mut self,
+        left: &Pyramid,
+        right: &GrayImage,
+    ) -> Result<Image<f32>, FrameError> {
+        let l = self.stereo_level.min(left.levels.len() - 1);
+        let scale = 1usize << l;
+        let focal = self.camera.pinhole.fx / scale as f64;
+        if l == 0 {
+            let disparity = self.stereo.compute(&left.levels[0], right)?;
+            return Ok(disparity_to_depth(&disparity, focal, self.camera.baseline));
+        }
+        let mut r = half_sample(right)?;
+        for _ in 1..l {
+            r = half_sample(&r)?;
+        }
+        let disparity = self.stereo.compute(&left.levels[l], &r)?;
+        let coarse = disparity_to_depth(&disparity, focal, self.camera.baseline);
+        let (w, h) = (left.levels[0].width(), left.levels[0].height());
+        let (cw, ch) = (coarse.width(), coarse.height());
+        let mut depth = Image::<f32>::new(w, h);
+        for y in 0..h {
+            let src = coarse.row((y / scale).min(ch - 1));
+            for (x, d) in depth.row_mut(y).iter_mut().enumerate() {
+                *d = src[(x / scale).min(cw - 1)];
+            }
+        }
+        Ok(depth)
+    }
+
     /// Prepares a frame: pyramid, FAST corners, depth.
     pub fn prepare(&mut self, frame: Frame) -> Result<FrameData, FrameError> {
         let Frame {
@@ -318,10 +358,7 @@ impl SensorFrontEnd {
         } = frame;
         let (gray, depth, colour, right) = match (images, self.kind) {
             (FrameImages::Stereo { left, right }, DepthSource::BlockMatching) => {
-                let disparity = self.stereo.compute(&left, &right)?;
-                let depth =
-                    disparity_to_depth(&disparity, self.camera.pinhole.fx, self.camera.baseline);
-                (left, Some(depth), None, Some(right))
+                (left, None, None, Some(right))
             }
             (
                 FrameImages::Rgbd {
@@ -351,6 +388,10 @@ impl SensorFrontEnd {
         };
         let pyramid = Pyramid::new(&gray, self.levels, 16)?;
         let (w, h) = (gray.width(), gray.height());
+        let depth = match &right {
+            Some(right) => Some(self.stereo_depth(&pyramid, right)?),
+            None => depth,
+        };
         let corners = fast9_level(&pyramid.levels[0], self.fast_threshold, true, 0);
         Ok(FrameData {
             index,
@@ -386,6 +427,74 @@ mod tests {
         // A slanted plane (1 % per pixel) passes.
         let slant = |u: usize, _v: usize| Some(2.0 * (1.0 + 0.01 * u as f64));
         assert!(depth_off_edges(&slant, 30.0, 3.0, 1, 0.05).is_some());
+    }
+
+    /// A rectified pair of a slanted textured plane, disparity `4 + 0.05·u` (6–11 px): the depth
+    /// block-matched at level 0 and at level 1 (upsampled) both give each corner's depth, and
+    /// every point's stereo measurement, refined on its own patch, gives its disparity to a
+    /// small fraction of a pixel from either map.
+    #[test]
+    fn stereo_depth_at_level_one_matches_level_zero() {
+        use data::sequence::Frame;
+        use geom::PinholeCamera;
+        let (w, h) = (180usize, 120usize);
+        let disparity = |u: f64| 4.0 + 0.05 * u;
+        let texture = |x: f32, y: f32| {
+            (128.0
+                + 60.0 * (x * 0.31).sin() * (y * 0.23).cos()
+                + 40.0 * ((x * 0.11 + y * 0.17).sin() > 0.2) as u8 as f32) as u8
+        };
+        let left = GrayImage::from_fn(w, h, |u, v| texture(u as f32, v as f32));
+        // The left pixel u appears at u − d(u) on the right: u = (u_r + 4) / 0.95.
+        let right = GrayImage::from_fn(w, h, |u, v| texture((u as f32 + 4.0) / 0.95, v as f32));
+        let camera = StereoCamera::new(PinholeCamera::new(100.0, 100.0, 90.0, 60.0), 0.2);
+        let frame = || Frame {
+            index: 0,
+            timestamp: 0.0,
+            images: FrameImages::Stereo {
+                left: left.clone(),
+                right: right.clone(),
+            },
+            world_from_camera: None,
+        };
+        let mut measured = Vec::new();
+        for level in [0, 1] {
+            let mut config = SystemConfig::default();
+            config.stereo.level = level;
+            config.stereo.max_disparity = Some(32);
+            let mut front = SensorFrontEnd::new(&SensorModel::Stereo(camera), &config).unwrap();
+            let data = front.prepare(frame()).unwrap();
+            let depth = data.depth.as_ref().unwrap();
+            assert_eq!((depth.width(), depth.height()), (w, h));
+            let (mut e_map, mut e_point) = (Vec::new(), Vec::new());
+            for c in data.corners.corners().iter().filter(|c| {
+                c.u > 40.0 && c.v > 20.0 && c.u < (w - 20) as f32 && c.v < (h - 20) as f32
+            }) {
+                let u = Vector2::new(c.u as f64, c.v as f64);
+                let d_true = disparity(u.x);
+                if let Some(z) = data.depth_at(u.x, u.y) {
+                    e_map.push(100.0 * 0.2 / z - d_true);
+                }
+                if let Some(z) = data.stereo_measurement(u, &camera) {
+                    e_point.push(z.x - z.z - d_true);
+                }
+            }
+            let rms = |e: &[f64]| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
+            let (map, point) = (rms(&e_map), rms(&e_point));
+            println!(
+                "level {level}: {} / {} corners with a map / point disparity, RMS error {map:.3} / {point:.3} px",
+                e_map.len(),
+                e_point.len()
+            );
+            assert!(e_point.len() >= 100, "level {level}: {}", e_point.len());
+            assert!(
+                point < 0.1,
+                "level {level}: point disparities {point} px RMS"
+            );
+            measured.push((map, point));
+        }
+        // The coarser map is the coarser start (its pixel is two), the points are not.
+        assert!(measured[1].0 > measured[0].0, "{measured:?}");
     }
 
     #[test]
