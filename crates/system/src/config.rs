@@ -448,7 +448,7 @@ pub struct StereoConfig {
     /// at full resolution) and the depth of the dense prior (level 2 and coarser), so a coarser
     /// map costs little accuracy and saves most of a stereo frame's time: level 1 matches a
     /// quarter of the pixels over half the disparities (KITTI 1226×370: frame 45 → 12 ms;
-    /// rendered 640×480: 35 → 74 frames per second on two cores). 0 by default because full
+    /// rendered 640×480: 35 → 74 frames per second, deterministic). 0 by default because full
     /// resolution was the more accurate on three of four sequences (deterministic ATE live /
     /// after, level 0 against 1, 2026-12-03): rendered courtyard stereo 0.74 / 0.67 against
     /// 0.84 / 0.79 cm, room stereo 0.12 / 0.12 against 0.13 / 0.13 cm, KITTI 6.09 / 5.29

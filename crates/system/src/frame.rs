@@ -306,15 +306,6 @@ impl SensorFrontEnd {
         &self.camera.pinhole
     }
 
-    /// The stereo measurement `(u, v, u − f·b/z)` of a pixel with depth `z`.
-    pub fn measurement(&self, u: f64, v: f64, depth: f64) -> Vector3<f64> {
-        Vector3::new(
-            u,
-            v,
-            u - self.camera.pinhole.fx * self.camera.baseline / depth,
-        )
-    }
-
     /// The depth of a stereo frame at level 0, block-matched at `stereo_level` (the left
     /// image's pyramid level, the right image half-sampled alike), each level-0 pixel taking the
     /// depth of the level pixel it lies in.
