@@ -240,17 +240,15 @@ fn middlebury_stereo_bad_pixel_rates() {
     let Some(dir) = data_dir("middlebury_stereo") else {
         return;
     };
-    for (name, l, r, gt, scale, ndisp) in MIDDLEBURY {
-        let d = dir.join(name);
-        let left = load_gray_u8(d.join(l)).unwrap();
-        let right = load_gray_u8(d.join(r)).unwrap();
-        let gt_raw = load_gray_u8(d.join(gt)).unwrap();
-        let gt = gt_raw.map(|x| x as f32 / scale);
-        let mask = nonocc_mask(&gt);
-        let params = StereoParams {
-            max_disparity: ndisp - 1,
-            ..Default::default()
-        };
+    for MiddleburyPair {
+        name,
+        left,
+        right,
+        gt,
+        mask,
+        params,
+    } in middlebury_pairs(&dir)
+    {
         let t = Instant::now();
         let disp = block_match(&left, &right, &params).unwrap();
         let ms = t.elapsed().as_secs_f64() * 1e3;
@@ -279,16 +277,15 @@ fn point_disparities_on_middlebury() {
     let Some(dir) = data_dir("middlebury_stereo") else {
         return;
     };
-    for (name, l, r, gt, scale, ndisp) in MIDDLEBURY {
-        let d = dir.join(name);
-        let left = load_gray_u8(d.join(l)).unwrap();
-        let right = load_gray_u8(d.join(r)).unwrap();
-        let gt = load_gray_u8(d.join(gt)).unwrap().map(|x| x as f32 / scale);
-        let mask = nonocc_mask(&gt);
-        let params = StereoParams {
-            max_disparity: ndisp - 1,
-            ..Default::default()
-        };
+    for MiddleburyPair {
+        name,
+        left,
+        right,
+        gt,
+        mask,
+        params,
+    } in middlebury_pairs(&dir)
+    {
         let disp = block_match(&left, &right, &params).unwrap();
         let (mut e_map, mut e_point, mut corners) = (Vec::new(), Vec::new(), 0usize);
         for c in vision::fast::fast9(&left, 20, true) {

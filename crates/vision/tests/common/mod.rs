@@ -240,6 +240,39 @@ pub const MIDDLEBURY: [(&str, &str, &str, &str, f32, usize); 3] = [
     ("teddy", "im2.png", "im6.png", "disp2.png", 4.0, 64),
 ];
 
+/// A Middlebury pair ready for evaluation: the images, the ground truth in pixels, its
+/// non-occluded mask and the matcher's parameters for the scene's disparity range.
+pub struct MiddleburyPair {
+    pub name: &'static str,
+    pub left: GrayImage,
+    pub right: GrayImage,
+    pub gt: Image<f32>,
+    pub mask: Image<u8>,
+    pub params: vision::stereo::StereoParams,
+}
+
+/// The [`MIDDLEBURY`] pairs of `dir` (the `middlebury_stereo` folder).
+pub fn middlebury_pairs(dir: &Path) -> Vec<MiddleburyPair> {
+    MIDDLEBURY
+        .iter()
+        .map(|&(name, l, r, gt, scale, ndisp)| {
+            let d = dir.join(name);
+            let gt = load_gray_u8(d.join(gt)).unwrap().map(|x| x as f32 / scale);
+            MiddleburyPair {
+                name,
+                left: load_gray_u8(d.join(l)).unwrap(),
+                right: load_gray_u8(d.join(r)).unwrap(),
+                mask: nonocc_mask(&gt),
+                gt,
+                params: vision::stereo::StereoParams {
+                    max_disparity: ndisp - 1,
+                    ..Default::default()
+                },
+            }
+        })
+        .collect()
+}
+
 /// Bad-pixel rate (|d − gt| > 1, invalid counted as bad) over the non-occluded mask, and the
 /// fraction of mask pixels with a valid estimate.
 pub fn bad_pixel_rate(disp: &Image<f32>, gt: &Image<f32>, mask: &Image<u8>) -> (f64, f64) {
