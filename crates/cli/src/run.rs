@@ -469,6 +469,9 @@ fn drive<S: LiveRun<N>, const N: usize>(
     record
         .extra
         .insert("keyframe_reasons".into(), json!(reasons));
+    record
+        .extra
+        .insert("warnings".into(), json!(result.warnings));
     record.extra.insert(
         "loops".into(),
         json!(
@@ -477,7 +480,9 @@ fn drive<S: LiveRun<N>, const N: usize>(
                 .iter()
                 .map(
                     |l| json!({"keyframe": l.keyframe.index(), "old": l.old.index(),
-                "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind, "scale": l.scale})
+                "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind, "scale": l.scale,
+                "correction_m": l.correction.map(|d| d.displacement),
+                "path_m": l.correction.map(|d| d.path)})
                 )
                 .collect::<Vec<_>>()
         ),

@@ -242,6 +242,15 @@ pub struct LoopConfig {
     pub queue: usize,
     /// Place recognition's thresholds (its `depth_noise` is the system's).
     pub place_recognition: crate::place_recognition::PlaceRecognitionConfig,
+    /// A loop by appearance (stereo and RGB-D) may move its keyframe by at most this fraction
+    /// of the path since the old place (0.05: stereo and RGB-D odometry drift by 1–2 % of the
+    /// distance; `slam::mapping::MappingConfig::new` gives the measurements) ...
+    pub max_drift_of_path: f64,
+    /// ... or by this fraction of the old place's scene depth, if more (0.1: the keyframe
+    /// criterion's coverage, within which the two views are one place whatever the path).
+    /// Loops needing more join two places that only look alike; each refused loop is named in
+    /// the run's warnings. (Monocular loops: 10 % of the path, `mono.rs`.)
+    pub max_drift_of_scene_depth: f64,
 }
 
 impl Default for LoopConfig {
@@ -253,6 +262,8 @@ impl Default for LoopConfig {
             exclusion_recent: 10,
             queue: 16,
             place_recognition: Default::default(),
+            max_drift_of_path: 0.05,
+            max_drift_of_scene_depth: 0.1,
         }
     }
 }
@@ -564,6 +575,17 @@ impl SystemConfig {
         self.dense
             .validate()
             .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        for (name, v) in [
+            ("loops.max_drift_of_path", self.loops.max_drift_of_path),
+            (
+                "loops.max_drift_of_scene_depth",
+                self.loops.max_drift_of_scene_depth,
+            ),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("{name} must be a fraction >= 0 (got {v})"));
+            }
+        }
         if self.loops.queue == 0 {
             return bad("loops.queue must be at least 1".into());
         }

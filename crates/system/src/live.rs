@@ -29,6 +29,7 @@ use data::trajectory::Trajectory;
 use geom::StereoCamera;
 use lie::{LieGroup, Se3, Sim3};
 use slam::dwo::{DoubleWindowOptimiser, DwoError, DwoParams, DwoStats};
+use slam::loop_closure::LoopDrift;
 use slam::map::{KeyframeId, SharedGraph, SlamGraph};
 use slam::mapping::{KeyframeReport, Mapper, MappingError};
 use slam::tracking::TrackId;
@@ -103,6 +104,9 @@ pub struct LoopEvent {
     /// The scale of the loop's similarity (monocular: the scale drift between the two
     /// places, thesis ch. 5; `None` for a rigid loop).
     pub scale: Option<f64>,
+    /// The correction an appearance loop made to the new keyframe, against the path since
+    /// the old one (stereo and RGB-D).
+    pub correction: Option<LoopDrift>,
 }
 
 /// Everything a run produced; `N` is the dimension of a measurement (3: stereo and RGB-D, 2:
@@ -256,6 +260,10 @@ impl LiveSystem {
         let mapping = slam::mapping::MappingConfig {
             theta: config.mapping.theta,
             n2: config.mapping.n2,
+            appearance_max_drift: slam::loop_closure::DriftLimits {
+                of_path: config.loops.max_drift_of_path,
+                of_scene_depth: config.loops.max_drift_of_scene_depth,
+            },
             ..slam::mapping::MappingConfig::new(
                 sigma,
                 (2.0 * camera.pinhole.cx + 1.0, 2.0 * camera.pinhole.cy + 1.0),
@@ -642,10 +650,10 @@ impl LiveSystem {
             .unwrap_or_else(|e| e.into_inner())
             .insert(keyframe, images);
         for closure in &report.metric_loops {
-            self.loop_event(keyframe, closure.keyframe, "metric");
+            self.loop_event(keyframe, closure.keyframe, "metric", None);
         }
         if let Some(old) = report.appearance_loop {
-            self.loop_event(keyframe, old, "appearance");
+            self.loop_event(keyframe, old, "appearance", None);
         }
         self.close_large_loop(keyframe, frame);
         self.optimise()?;
@@ -681,7 +689,13 @@ impl LiveSystem {
         }
     }
 
-    fn loop_event(&mut self, keyframe: KeyframeId, old: KeyframeId, kind: &'static str) {
+    fn loop_event(
+        &mut self,
+        keyframe: KeyframeId,
+        old: KeyframeId,
+        kind: &'static str,
+        correction: Option<LoopDrift>,
+    ) {
         let store = self.store.read().unwrap_or_else(|e| e.into_inner());
         let frame_of = |k: KeyframeId| store.get(k).map_or(usize::MAX, |i| i.frame_index);
         self.loops.push(LoopEvent {
@@ -690,6 +704,7 @@ impl LiveSystem {
             frames: (frame_of(keyframe), frame_of(old)),
             kind,
             scale: None,
+            correction,
         });
     }
 
@@ -735,8 +750,23 @@ impl LiveSystem {
                 )
             }
         };
+        let mut refused = Vec::new();
         if let Some(closer) = &closer {
             self.record.timings.extend(&closer.timings);
+            let store = self.store.read().unwrap_or_else(|e| e.into_inner());
+            let frame_of = |k: KeyframeId| store.get(k).map_or(usize::MAX, |i| i.frame_index);
+            for (k, old, d) in &closer.refused {
+                refused.push(format!(
+                    "a loop by appearance from frame {} to frame {} was refused: it moves the \
+                     keyframe by {:.2} m, more than the drift allowed over the {:.1} m since \
+                     ({:.2} m; a place that looks like another)",
+                    frame_of(*k),
+                    frame_of(*old),
+                    d.displacement,
+                    d.path,
+                    d.allowed(&self.mapper.config().appearance_max_drift),
+                ));
+            }
         }
         let appearance = std::mem::take(
             &mut *self
@@ -745,7 +775,7 @@ impl LiveSystem {
                 .unwrap_or_else(|e| e.into_inner()),
         );
         for event in appearance {
-            self.loop_event(event.keyframe, event.old, "appearance");
+            self.loop_event(event.keyframe, event.old, "appearance", event.drift);
         }
         if let Some(worker) = self.worker.take() {
             drop(worker.wake);
@@ -762,6 +792,7 @@ impl LiveSystem {
                 .lock()
                 .unwrap_or_else(|e| e.into_inner()),
         );
+        warnings.extend(refused);
         if self.loop_queue_full > 0 {
             warnings.push(format!(
                 "{} keyframes found the loop closer's queue full and were not entered into \

@@ -16,7 +16,10 @@
 //!    metric loop closure ([`GuidedSearch`]);
 //! 4. closes the loop through the graph (`slam::mapping::Mapper::close_appearance_loop`: the
 //!    found old points become observations of the new keyframe, the edge `E_old,new` is added
-//!    with their rigid alignment as its measurement), under a short write lock. The double
+//!    with their rigid alignment as its measurement), under a short write lock — unless the
+//!    loop moves the new keyframe by more than the odometry's drift since the old place
+//!    explains (`slam::loop_closure::LoopDrift`; such loops are kept in
+//!    [`LoopCloser::refused`]). The double
 //!    window optimisation then corrects the poses; in the threaded system the loop closer
 //!    wakes it.
 //!
@@ -32,8 +35,9 @@ use crate::search::SearchScratch;
 use data::output::StageTimings;
 use geom::StereoCamera;
 use lie::LieGroup;
+use slam::loop_closure::LoopDrift;
 use slam::map::{KeyframeId, PointId, SharedGraph, SlamGraph};
-use slam::mapping::{AppearanceMatch, Mapper, MappingConfig, MappingError};
+use slam::mapping::{AppearanceClosure, AppearanceMatch, Mapper, MappingConfig, MappingError};
 use std::collections::BTreeSet;
 use std::sync::{Arc, RwLock};
 use std::time::Instant;
@@ -59,6 +63,8 @@ pub struct AppearanceLoop {
     pub ransac_inliers: usize,
     /// Old map points found in the new keyframe by the guided matching.
     pub map_matches: usize,
+    /// The correction the loop made to the new keyframe, against the path since the old one.
+    pub drift: Option<LoopDrift>,
 }
 
 /// Why the loop closer failed (a keyframe without a loop is not a failure).
@@ -85,6 +91,9 @@ pub struct LoopCloser {
     scratch: SearchScratch,
     /// Time of each stage.
     pub timings: StageTimings,
+    /// Loops verified by appearance but refused for the correction they needed: (new
+    /// keyframe, old keyframe, the correction against the path).
+    pub refused: Vec<(KeyframeId, KeyframeId, LoopDrift)>,
 }
 
 impl LoopCloser {
@@ -110,6 +119,7 @@ impl LoopCloser {
             max_view_angle: config.tracker.max_view_angle_deg.to_radians(),
             scratch: SearchScratch::default(),
             timings: StageTimings::default(),
+            refused: Vec::new(),
         })
     }
 
@@ -165,16 +175,24 @@ impl LoopCloser {
         };
         let t = Instant::now();
         let map_matches = place.correspondences.len();
-        let closed = self
-            .mapper
-            .close_appearance_loop(&mut graph.write(), job.keyframe, &place)?;
+        let closure =
+            self.mapper
+                .close_appearance_loop(&mut graph.write(), job.keyframe, &place)?;
         self.timings.record("loop: close", t.elapsed());
-        Ok(closed.map(|old| AppearanceLoop {
-            keyframe: job.keyframe,
-            old,
-            ransac_inliers: candidate.ransac_inliers,
-            map_matches,
-        }))
+        Ok(match closure {
+            AppearanceClosure::Closed { old, drift } => Some(AppearanceLoop {
+                keyframe: job.keyframe,
+                old,
+                ransac_inliers: candidate.ransac_inliers,
+                map_matches,
+                drift,
+            }),
+            AppearanceClosure::TooMuchDrift(drift) => {
+                self.refused.push((job.keyframe, candidate.old, drift));
+                None
+            }
+            AppearanceClosure::TooFewMatches => None,
+        })
     }
 
     /// The old place's map points found in the new keyframe at the pose the loop implies.

@@ -37,7 +37,7 @@ use lie::{LieGroup, Se3, Sim3};
 use nalgebra::{Vector2, Vector3};
 use slam::exploration::{ExplorationConfig, ExplorationError, LocalWindow, MonoExplorer, TrackId};
 use slam::loop_closure::correction::correct_graph;
-use slam::loop_closure::{CorrectionGroup, LoopEdge};
+use slam::loop_closure::{CorrectionGroup, DriftLimits, LoopDrift, LoopEdge};
 use slam::map::KeyframeId;
 use slam::map::SlamGraph;
 use slam::pose_graph::{PoseGraphJacobian, rigid_from_similarity};
@@ -338,23 +338,13 @@ fn loop_within_drift(
     k: KeyframeId,
     k_from_old: &Sim3,
 ) -> bool {
-    let centre = |t: &Sim3| t.inverse().act(&Vector3::zeros());
-    let (Ok(t_old), Ok(t_k)) = (graph.pose(old), graph.pose(k)) else {
-        return false;
+    let limits = DriftLimits {
+        of_path: MAX_DRIFT_FRACTION,
+        of_scene_depth: 0.0,
     };
-    let implied = centre(&k_from_old.compose(&t_old));
-    let mut path = 0.0;
-    let mut previous: Option<Vector3<f64>> = None;
-    for i in old.index().min(k.index())..=old.index().max(k.index()) {
-        if let Ok(t) = graph.pose(KeyframeId::from_index(i)) {
-            let c = centre(&t);
-            if let Some(p) = previous {
-                path += (c - p).norm();
-            }
-            previous = Some(c);
-        }
-    }
-    (implied - centre(&t_k)).norm() <= MAX_DRIFT_FRACTION * path
+    graph.pose(old).ok().is_some_and(|t_old| {
+        LoopDrift::of(graph, old, k, &k_from_old.compose(&t_old)).is_some_and(|d| d.within(&limits))
+    })
 }
 
 /// For every keyframe sharing map points with `k` (`k` included), how many. The monocular
@@ -665,6 +655,7 @@ impl MonoSystem {
                         frames: (map.keyframe(d.current).frame, map.keyframe(d.old).frame),
                         kind: "appearance",
                         scale: Some(d.current_from_old.scale()),
+                        correction: None,
                     });
                 }
             }

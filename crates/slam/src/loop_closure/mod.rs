@@ -3,6 +3,8 @@
 //! - [`metric`]: metric loop closure in the SLAM graph (§6.4.1): points of `N2 \ N1` found
 //!   again in the reference keyframe join it to old keyframes, with the spread-of-matches test.
 //! - [`appearance`]: a large loop found by appearance (§6.4.2) inserted as a graph edge.
+//! - [`drift`]: whether a loop's correction is one the odometry's drift over the path since
+//!   the old place explains (else the two places only look alike).
 //! - [`constraint`]: the loop similarity of monocular SLAM from matched features, with depths
 //!   from the map or by kNN regression, 3-point RANSAC and robust refinement (§5.3.1).
 //! - [`correction`]: correcting the keyframes and points through the SE(3) or Sim(3) pose
@@ -11,6 +13,7 @@
 pub mod appearance;
 pub mod constraint;
 pub mod correction;
+pub mod drift;
 pub mod metric;
 
 pub use appearance::close_appearance_loop;
@@ -19,6 +22,7 @@ pub use constraint::{
     estimate_loop_constraint, knn_depth,
 };
 pub use correction::{Correction, CorrectionError, CorrectionGroup, LoopEdge};
+pub use drift::{DriftLimits, LoopDrift};
 pub use metric::{MetricLoopClosure, MetricLoopParams, close_metric_loops, loop_candidates};
 
 use crate::map::GraphError;

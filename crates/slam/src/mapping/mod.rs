@@ -35,7 +35,8 @@ mod pipeline;
 pub mod registration;
 
 pub use mapper::{
-    AppearanceMatch, Mapper, MappingConfig, MappingError, PreparedFrame, TrackedFrame,
+    AppearanceClosure, AppearanceMatch, Mapper, MappingConfig, MappingError, PreparedFrame,
+    TrackedFrame,
 };
 pub use pipeline::{FrontEnd, KeyframePipeline, KeyframeReport};
 pub use registration::register_locally;

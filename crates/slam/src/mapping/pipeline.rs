@@ -145,7 +145,9 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         let (keyframe, _) = self.insert_keyframe(graph, frame)?;
         stage("keyframe: insert and register", &mut stage_times);
         let appearance_loop = match front_end.recognise_place(graph, keyframe) {
-            Some(place) => self.close_appearance_loop(graph, keyframe, &place)?,
+            Some(place) => self
+                .close_appearance_loop(graph, keyframe, &place)?
+                .closed(),
             None => None,
         };
         stage("keyframe: appearance loop", &mut stage_times);
