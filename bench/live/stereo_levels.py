@@ -3,8 +3,8 @@
 runs at), deterministic, one after the other on the same core: ATE of the live and the final
 trajectory and the time per frame, side by side, as a markdown table (also OUT/table.md).
 
-    bench/live/stereo_levels.py --dwslam target/release/dwslam --out OUT SEQ [SEQ ...] \
-        [--levels 0 1] [--cpu 1]      (the options after the sequences)
+    bench/live/stereo_levels.py --dwslam target/release/dwslam --out OUT [--levels 0,1]
+        [--cpu 1] SEQ [SEQ ...]
 
 Each SEQ is a stereo sequence folder `dwslam run` reads (KITTI, EuRoC or rendered). Several
 sequences (and renders of one world with different seeds, `dwslam render --seed`) are needed:
@@ -44,7 +44,8 @@ def main():
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dwslam", required=True)
     p.add_argument("--out", required=True)
-    p.add_argument("--levels", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--levels", type=lambda s: [int(x) for x in s.split(",")], default=[0, 1],
+                   help="comma-separated levels (default 0,1)")
     p.add_argument("--cpu", type=int, default=None, help="pin each run to this core")
     p.add_argument("sequences", nargs="+")
     a = p.parse_args()

@@ -16,7 +16,7 @@
 //!    metric loop closure ([`GuidedSearch`]);
 //! 4. closes the loop through the graph (`slam::mapping::Mapper::close_appearance_loop`: the
 //!    found old points become observations of the new keyframe, the edge `E_old,new` is added
-//!    with their rigid alignment as its measurement), under a short write lock — unless the
+//!    with the pose the matches give as its measurement), under a short write lock — unless the
 //!    loop moves the new keyframe by more than the odometry's drift since the old place
 //!    explains (`slam::loop_closure::LoopDrift`; such loops are kept in
 //!    [`LoopCloser::refused`]). The double

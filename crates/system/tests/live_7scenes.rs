@@ -100,6 +100,13 @@ fn the_kitchen_revisits_are_closed_as_loops() {
         // The frames a loop joins are named: a new keyframe's frame and an older one's.
         assert!(l.frames.0 < 1000 && l.frames.1 < l.frames.0, "{l:?}");
     }
+    for l in r.loops.iter().filter(|l| l.kind == "appearance") {
+        // Each appearance loop's correction is measured, and is the odometry's drift here (a
+        // few centimetres: the live ATE is about 5 cm), not a jump to a place that only looks
+        // alike.
+        let d = l.correction.expect("an appearance loop's correction");
+        assert!(d.path > 0.0 && d.displacement < 0.2, "{l:?}");
+    }
     let est: Vec<lie::Se3> = r
         .record
         .frames
