@@ -642,6 +642,32 @@ mod tests {
         g.check_invariants().unwrap();
     }
 
+    /// 40 points spread over a scene 2–4 m in front of keyframe `old` (in its frame), anchored
+    /// and observed there: the old place of the appearance-loop tests.
+    fn old_place_points(
+        g: &mut SlamGraph<3>,
+        old: KeyframeId,
+        camera: &StereoCamera,
+    ) -> Vec<(PointId, Vector3<f64>)> {
+        (0..40)
+            .map(|i| {
+                let x = Vector3::new(
+                    -1.0 + 0.05 * i as f64,
+                    -0.6 + 0.03 * ((i * 7) % 40) as f64,
+                    2.0 + 0.05 * ((i * 13) % 40) as f64,
+                );
+                let p = g
+                    .add_point(
+                        old,
+                        point_to_inverse_depth(&x).unwrap(),
+                        camera.project(&x).unwrap(),
+                    )
+                    .unwrap();
+                (p, x)
+            })
+            .collect()
+    }
+
     #[test]
     fn wrong_matches_of_an_appearance_loop_are_dropped_before_the_alignment() {
         let mapper = mapper();
@@ -655,19 +681,10 @@ mod tests {
         let new = g.add_keyframe(drifted);
         let mut correspondences = Vec::new();
         let mut wrong = Vec::new();
-        for i in 0..40 {
-            let x = Vector3::new(
-                -1.0 + 0.05 * i as f64,
-                -0.6 + 0.03 * ((i * 7) % 40) as f64,
-                2.0 + 0.05 * ((i * 13) % 40) as f64,
-            );
-            let p = g
-                .add_point(
-                    old,
-                    point_to_inverse_depth(&x).unwrap(),
-                    camera.project(&x).unwrap(),
-                )
-                .unwrap();
+        for (i, (p, x)) in old_place_points(&mut g, old, &camera)
+            .into_iter()
+            .enumerate()
+        {
             let mut z = camera.project(&truth.act(&x)).unwrap();
             if i % 10 == 3 {
                 // A wrong patch match: 25 px off, with the disparity of a surface behind it.
@@ -714,22 +731,9 @@ mod tests {
             let graph_pose = Sim3::from_se3(&Se3::from_translation(Vector3::new(offset, 0.0, 0.0)))
                 .compose(&Sim3::from_se3(&truth));
             let new = g.add_keyframe(graph_pose);
-            let correspondences: Vec<_> = (0..30)
-                .map(|i| {
-                    let x = Vector3::new(
-                        -1.0 + 0.07 * i as f64,
-                        -0.6 + 0.04 * ((i * 7) % 30) as f64,
-                        2.0 + 0.07 * ((i * 13) % 30) as f64,
-                    );
-                    let p = g
-                        .add_point(
-                            old,
-                            point_to_inverse_depth(&x).unwrap(),
-                            camera.project(&x).unwrap(),
-                        )
-                        .unwrap();
-                    (p, camera.project(&truth.act(&x)).unwrap(), None)
-                })
+            let correspondences: Vec<_> = old_place_points(&mut g, old, &camera)
+                .into_iter()
+                .map(|(p, x)| (p, camera.project(&truth.act(&x)).unwrap(), None))
                 .collect();
             let place = AppearanceMatch {
                 old,
