@@ -438,11 +438,16 @@ fn drive<S: LiveRun<N>, const N: usize>(
         println!("warning: {w}");
     }
     println!(
-        "{processed} frames in {seconds:.1} s ({:.1} frames per second), {} keyframes, {} points, {} loop closures{}",
+        "{processed} frames in {seconds:.1} s ({:.1} frames per second), {} keyframes, {} points, {} loop closures{}{}",
         processed as f64 / seconds.max(1e-9),
         result.record.keyframes.len(),
         result.record.points.len(),
         result.loops.len(),
+        match result.relocalisations.len() {
+            0 => String::new(),
+            1 => ", 1 relocalisation".into(),
+            n => format!(", {n} relocalisations"),
+        },
         if stop.load(Ordering::SeqCst) {
             " — interrupted"
         } else {
@@ -484,6 +489,18 @@ fn drive<S: LiveRun<N>, const N: usize>(
                 "correction_m": l.correction.map(|d| d.displacement),
                 "path_m": l.correction.map(|d| d.path)})
                 )
+                .collect::<Vec<_>>()
+        ),
+    );
+    record.extra.insert(
+        "relocalisations".into(),
+        json!(
+            result
+                .relocalisations
+                .iter()
+                .map(|r| json!({"frame": r.frame, "keyframe": r.keyframe.index(),
+                "keyframe_frame": r.keyframe_frame, "ransac_inliers": r.ransac_inliers,
+                "tracked": r.tracked}))
                 .collect::<Vec<_>>()
         ),
     );

@@ -19,9 +19,10 @@
 
 use crate::association::KeyframeAssociation;
 use crate::config::SystemConfig;
-use crate::frame::{FrameData, FrameError, SensorFrontEnd};
+use crate::frame::{FrameData, FrameError, SensorFrontEnd, pixel_depth};
 use crate::keyframes::{KeyframeReason, KeyframeStore, keyframe_reason, nearest_keyframe};
 use crate::loops::{AppearanceLoop, LoopCloser, LoopJob};
+use crate::place_recognition::{PlaceRecognition, PlaceRecognitionConfig, features};
 use crate::tracker::{Tracked, Tracker, TrackerStats};
 use data::camera::SensorModel;
 use data::output::{FrameRecord, KeyframeRecord, MapPoint, RunRecord, StageTimings, TrackingState};
@@ -109,6 +110,22 @@ pub struct LoopEvent {
     pub correction: Option<LoopDrift>,
 }
 
+/// A lost frame found again in the map by appearance ([`PlaceRecognition::relocalise`]) and
+/// tracked from there.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Relocalisation {
+    /// The frame (its index in the sequence).
+    pub frame: usize,
+    /// The keyframe whose place it recognised, and the frame that keyframe was made from.
+    pub keyframe: KeyframeId,
+    /// The keyframe's frame.
+    pub keyframe_frame: usize,
+    /// Inliers of the appearance matches' RANSAC.
+    pub ransac_inliers: usize,
+    /// Map points tracked after it (motion-only BA inliers).
+    pub tracked: usize,
+}
+
 /// Everything a run produced; `N` is the dimension of a measurement (3: stereo and RGB-D, 2:
 /// monocular).
 #[derive(Clone, Debug)]
@@ -123,6 +140,8 @@ pub struct RunResult<const N: usize = 3> {
     pub frames: Vec<FrameReport>,
     /// The loop closures.
     pub loops: Vec<LoopEvent>,
+    /// The lost frames found again by appearance (stereo and RGB-D).
+    pub relocalisations: Vec<Relocalisation>,
     /// The optimisations (time and window sizes of each).
     pub optimisations: Vec<DwoStats>,
     /// The final graph.
@@ -235,6 +254,10 @@ pub struct LiveSystem {
     appearance_loops: Arc<Mutex<Vec<AppearanceLoop>>>,
     /// Keyframes the loop closer's queue had no room for.
     loop_queue_full: usize,
+    /// The loop closer's place-recognition database (and its configuration), where a lost
+    /// frame is looked for.
+    relocaliser: Option<(Arc<RwLock<PlaceRecognition>>, PlaceRecognitionConfig)>,
+    relocalisations: Vec<Relocalisation>,
     next_track: TrackId,
     record: RunRecord,
     /// Per frame with a pose: `(frame position in record.frames, reference, T·T_ref⁻¹)`.
@@ -309,6 +332,8 @@ impl LiveSystem {
             loop_stage: LoopStage::Off,
             appearance_loops: Arc::new(Mutex::new(Vec::new())),
             loop_queue_full: 0,
+            relocaliser: None,
+            relocalisations: Vec::new(),
             next_track: 0,
             record: RunRecord {
                 sequence: sequence.to_string(),
@@ -343,6 +368,7 @@ impl LiveSystem {
             &self.config,
             self.mapper.config().clone(),
         )?;
+        self.relocaliser = Some(closer.shared_database());
         self.loop_stage = match self.mode {
             Mode::Deterministic => LoopStage::Inline(Box::new(closer)),
             Mode::Threaded => {
@@ -453,13 +479,20 @@ impl LiveSystem {
         let store = store_lock.read().unwrap_or_else(|e| e.into_inner());
         let tracked = self.tracker.track(&self.graph, &store, frame);
         drop(store);
-        let Some(tracked) = tracked else {
+        let Some(mut tracked) = tracked else {
             return Ok(self.lost(frame, "no reference keyframe to track against", t.elapsed()));
         };
-        let time_tracking = t.elapsed();
         for (stage, d) in &tracked.timings {
             self.record.timings.record(stage, *d);
         }
+        if matches!(tracked.state, TrackingState::Lost(_)) {
+            let t = Instant::now();
+            if let Some(found) = self.relocalise(frame) {
+                tracked = found;
+            }
+            self.record.timings.record("track: relocalise", t.elapsed());
+        }
+        let time_tracking = t.elapsed();
         self.record.timings.record("track: total", time_tracking);
         let Tracked {
             camera_from_world,
@@ -533,6 +566,80 @@ impl LiveSystem {
             time: Duration::ZERO,
             time_tracking,
         })
+    }
+
+    /// Looks for a lost frame in the map by appearance: the keyframe whose place it shows
+    /// (verified by the 3-point RANSAC of loop closure, [`PlaceRecognition::relocalise`]), the
+    /// pose that gives, and the frame tracked again from there against that keyframe's
+    /// neighbourhood (guided search with the wide radius, motion-only BA). Accepted only if the
+    /// tracking is good; else the tracker and the reference keyframe are left as they were.
+    /// Frames without depth are not tried (the verification is 3D–3D).
+    fn relocalise(&mut self, frame: &Arc<FrameData>) -> Option<Tracked> {
+        let (database, config) = self.relocaliser.as_ref()?;
+        let depth = frame.depth.as_ref()?;
+        let features = features::extract(
+            frame.gray(),
+            |u, v| pixel_depth(depth, u, v),
+            Vec::new(),
+            self.sensor.pinhole(),
+            config,
+        )
+        .ok()?;
+        let candidate = database
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .relocalise(frame.index as u32, &features)?;
+        let (pose, before) = {
+            let g = self.graph.read();
+            let old = g.pose(candidate.old).ok()?;
+            (
+                candidate.query_from_old.compose(&old).rigid_part(),
+                g.reference(),
+            )
+        };
+        let motion = self.tracker.motion();
+        self.graph.write().set_reference(candidate.old).ok()?;
+        let store_lock = self.store.clone();
+        let store = store_lock.read().unwrap_or_else(|e| e.into_inner());
+        let keyframe_frame = store
+            .get(candidate.old)
+            .map_or(usize::MAX, |i| i.frame_index);
+        // Tracked from the verified pose, and once more from the pose that gives if it was
+        // weak: the appearance matches' pose is good to centimetres, the map's to millimetres,
+        // and a better prior finds more of the map (ORB-SLAM refines a relocalisation alike).
+        let mut tracked = None;
+        let mut prior = pose;
+        for _ in 0..2 {
+            self.tracker.restart(frame.index, prior);
+            tracked = self.tracker.track(&self.graph, &store, frame);
+            match &tracked {
+                Some(t) if matches!(t.state, TrackingState::Weak(_)) => {
+                    prior = t.camera_from_world.rigid_part();
+                }
+                _ => break,
+            }
+        }
+        drop(store);
+        match tracked {
+            Some(t) if t.state == TrackingState::Good => {
+                self.tracker.reset_velocity();
+                self.relocalisations.push(Relocalisation {
+                    frame: frame.index,
+                    keyframe: candidate.old,
+                    keyframe_frame,
+                    ransac_inliers: candidate.ransac_inliers,
+                    tracked: t.stats.inliers,
+                });
+                Some(t)
+            }
+            _ => {
+                self.tracker.set_motion(motion);
+                if let Some(r) = before {
+                    let _ = self.graph.write().set_reference(r);
+                }
+                None
+            }
+        }
     }
 
     /// The keyframe to track the next frame against: of the keyframes observing this frame's
@@ -844,6 +951,7 @@ impl LiveSystem {
             final_trajectory,
             frames: self.reports,
             loops: self.loops,
+            relocalisations: self.relocalisations,
             optimisations,
             graph,
             keyframes: store,

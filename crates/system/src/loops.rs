@@ -30,7 +30,9 @@ use crate::association::GuidedSearch;
 use crate::config::SystemConfig;
 use crate::frame::{FrameData, SensorFrontEnd, pixel_depth};
 use crate::keyframes::KeyframeStore;
-use crate::place_recognition::{LoopCandidate, PlaceRecognition, PlaceRecognitionError};
+use crate::place_recognition::{
+    LoopCandidate, PlaceRecognition, PlaceRecognitionConfig, PlaceRecognitionError, features,
+};
 use crate::search::SearchScratch;
 use data::output::StageTimings;
 use geom::StereoCamera;
@@ -80,7 +82,11 @@ pub enum LoopError {
 
 /// The loop closer: the place-recognition database and the stages that close a loop.
 pub struct LoopCloser {
-    recogniser: PlaceRecognition,
+    /// The database, shared with the tracking thread's relocalisation (read-locked there and
+    /// while a loop is detected; write-locked only to insert a keyframe's features).
+    recogniser: Arc<RwLock<PlaceRecognition>>,
+    /// Its configuration (to extract features outside the lock).
+    place: PlaceRecognitionConfig,
     mapper: Mapper<StereoCamera, 3>,
     sensor: SensorFrontEnd,
     exclusion_hops: usize,
@@ -109,7 +115,11 @@ impl LoopCloser {
         let mut place = config.loops.place_recognition.clone();
         place.depth_noise = config.depth_noise_for(sensor.camera(), sensor.measures_disparity());
         Ok(LoopCloser {
-            recogniser: PlaceRecognition::new(vocabulary, place)?,
+            recogniser: Arc::new(RwLock::new(PlaceRecognition::new(
+                vocabulary,
+                place.clone(),
+            )?)),
+            place,
             mapper: Mapper::new(*sensor.camera(), mapping),
             sensor,
             exclusion_hops: config.loops.exclusion_hops,
@@ -123,14 +133,25 @@ impl LoopCloser {
         })
     }
 
+    /// The place-recognition database (shared: see [`LoopCloser::shared_database`]).
+    fn database(&self) -> std::sync::RwLockReadGuard<'_, PlaceRecognition> {
+        self.recogniser.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The database, for relocalising lost frames from another thread
+    /// ([`PlaceRecognition::relocalise`]), with its configuration.
+    pub fn shared_database(&self) -> (Arc<RwLock<PlaceRecognition>>, PlaceRecognitionConfig) {
+        (self.recogniser.clone(), self.place.clone())
+    }
+
     /// Keyframes in the database.
     pub fn len(&self) -> usize {
-        self.recogniser.len()
+        self.database().len()
     }
 
     /// `true` before the first keyframe.
     pub fn is_empty(&self) -> bool {
-        self.recogniser.is_empty()
+        self.database().is_empty()
     }
 
     /// Adds `job`'s keyframe to the database and closes its loop, if it has one (see the
@@ -145,8 +166,17 @@ impl LoopCloser {
         let t = Instant::now();
         let frame = &job.frame;
         let depth = |u, v| frame.depth.as_ref().and_then(|d| pixel_depth(d, u, v));
+        let features = features::extract(
+            frame.gray(),
+            depth,
+            Vec::new(),
+            self.sensor.pinhole(),
+            &self.place,
+        )?;
         self.recogniser
-            .add_keyframe(job.keyframe, frame.gray(), depth, self.sensor.pinhole())?;
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(job.keyframe, features)?;
         self.timings.record("loop: ORB features", t.elapsed());
         let t = Instant::now();
         let excluded = {
@@ -158,7 +188,7 @@ impl LoopCloser {
             close.extend(recent_keyframes(job.keyframe, self.exclusion_recent));
             close
         };
-        let candidate = self.recogniser.detect(job.keyframe, &excluded)?;
+        let candidate = self.database().detect(job.keyframe, &excluded)?;
         self.timings.record("loop: detect and verify", t.elapsed());
         let Some(candidate) = candidate else {
             return Ok(None);

@@ -1257,6 +1257,8 @@ impl LiveRun<2> for MonoSystem {
             final_trajectory,
             frames: self.reports,
             loops: self.events,
+            // The monocular system starts a new map when lost (no relocalisation yet).
+            relocalisations: Vec::new(),
             optimisations: Vec::new(),
             graph,
             keyframes: KeyframeStore::new(),

@@ -69,6 +69,7 @@ pub struct Tracked {
 }
 
 /// The last frame with depth: the reference of the next dense alignment.
+#[derive(Clone)]
 struct DenseReference {
     frame: Arc<FrameData>,
     camera_from_world: Se3,
@@ -79,12 +80,19 @@ pub struct Tracker {
     config: TrackerConfig,
     sigma: f64,
     camera: StereoCamera,
+    motion: Motion,
+    scratch: SearchScratch,
+}
+
+/// What the tracker carries from frame to frame: the motion model and the dense reference
+/// ([`Tracker::motion`], to try something and go back).
+#[derive(Clone)]
+pub struct Motion {
     /// The last frame's index and pose.
     last: Option<(usize, Se3)>,
     /// Per-frame motion `T_k·T_{k−1}⁻¹`.
     velocity: Se3,
     dense_reference: Option<DenseReference>,
-    scratch: SearchScratch,
 }
 
 impl Tracker {
@@ -95,31 +103,60 @@ impl Tracker {
             config,
             sigma,
             camera,
-            last: None,
-            velocity: Se3::identity(),
-            dense_reference: None,
+            motion: Motion {
+                last: None,
+                velocity: Se3::identity(),
+                dense_reference: None,
+            },
             scratch: SearchScratch::default(),
         }
     }
 
     /// Records `frame`'s pose as known (the first keyframe), the start of the motion model.
     pub fn set_pose(&mut self, frame: &Arc<FrameData>, camera_from_world: Se3) {
-        self.last = Some((frame.index, camera_from_world));
-        self.velocity = Se3::identity();
+        self.motion.last = Some((frame.index, camera_from_world));
+        self.motion.velocity = Se3::identity();
         if frame.depth.is_some() {
-            self.dense_reference = Some(DenseReference {
+            self.motion.dense_reference = Some(DenseReference {
                 frame: frame.clone(),
                 camera_from_world,
             });
         }
     }
 
+    /// The motion model and dense reference as they are now.
+    pub fn motion(&self) -> Motion {
+        self.motion.clone()
+    }
+
+    /// Puts back a [`Tracker::motion`].
+    pub fn set_motion(&mut self, motion: Motion) {
+        self.motion = motion;
+    }
+
+    /// Restarts the motion model at frame `index` with `camera_from_world` (a relocalisation):
+    /// no velocity and no dense reference, so [`Tracker::track`] of that frame searches around
+    /// this pose with the wide radius of a constant-velocity prior.
+    pub fn restart(&mut self, index: usize, camera_from_world: Se3) {
+        self.motion = Motion {
+            last: Some((index, camera_from_world)),
+            velocity: Se3::identity(),
+            dense_reference: None,
+        };
+    }
+
+    /// Forgets the velocity (after a relocalisation the motion between frames is unknown: the
+    /// last "motion" is the step from the relocalised pose to the tracked one).
+    pub fn reset_velocity(&mut self) {
+        self.motion.velocity = Se3::identity();
+    }
+
     /// The constant-velocity prediction for frame `index` (the last motion per frame, applied
     /// once for every frame since the last one: dropped frames are bridged).
     fn predict(&self, index: usize) -> Option<Se3> {
-        let (last_index, last) = self.last?;
+        let (last_index, last) = self.motion.last?;
         let steps = index.saturating_sub(last_index).max(1) as f64;
-        Some(Se3::exp(&(self.velocity.log() * steps)).compose(&last))
+        Some(Se3::exp(&(self.motion.velocity.log() * steps)).compose(&last))
     }
 
     /// Tracks `frame` against the map.
@@ -136,7 +173,7 @@ impl Tracker {
         let t = Instant::now();
         let mut prior = Prior::ConstantVelocity;
         let mut pose_prior = predicted;
-        if let Some(reference) = &self.dense_reference {
+        if let Some(reference) = &self.motion.dense_reference {
             let params = DenseParams {
                 levels: self.config.pyramid_levels,
                 finest_level: self.config.dense_finest_level,
@@ -346,13 +383,13 @@ impl Tracker {
         let median_depth = depths.get(depths.len() / 2).copied().unwrap_or(f64::NAN);
         // 6. The motion model and the next dense reference.
         let rigid = camera_from_world.rigid_part();
-        if let Some((last_index, last)) = self.last {
+        if let Some((last_index, last)) = self.motion.last {
             let steps = frame.index.saturating_sub(last_index).max(1) as f64;
-            self.velocity = Se3::exp(&(rigid.compose(&last.inverse()).log() / steps));
+            self.motion.velocity = Se3::exp(&(rigid.compose(&last.inverse()).log() / steps));
         }
-        self.last = Some((frame.index, rigid));
+        self.motion.last = Some((frame.index, rigid));
         if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_)) {
-            self.dense_reference = Some(DenseReference {
+            self.motion.dense_reference = Some(DenseReference {
                 frame: frame.clone(),
                 camera_from_world: rigid,
             });

@@ -490,10 +490,52 @@ impl PlaceRecognition {
             })
             .filter(|h| h.normalised_score >= self.config.min_normalised_score)
             .collect();
+        let candidate = self.verify_best(query.0, &q.features, &mut hypotheses);
+        Ok(Detection {
+            normaliser,
+            hypotheses,
+            candidate,
+        })
+    }
+
+    /// Relocalisation of a frame the tracker lost (ORB-SLAM's, Mur-Artal et al. 2015, with
+    /// this module's verification): the keyframes scored against the frame's words, the best
+    /// [`max_verifications`](PlaceRecognitionConfig::max_verifications) verified as a loop's
+    /// hypotheses are, and the one with the most inliers returned (`query_from_old` is then
+    /// `camera_from_old`). No normalisation: a lost frame has no neighbour known to show its
+    /// place, and there is no neighbourhood to exclude; the geometric check (Θ inliers of the
+    /// 3-point RANSAC) is the test. `seed` makes the RANSAC reproducible (the frame's index).
+    pub fn relocalise(&self, seed: u32, features: &KeyframeFeatures) -> Option<LoopCandidate> {
+        let bow = self.vocabulary.transform(&features.descriptors);
+        let mut hypotheses: Vec<Hypothesis> = self
+            .database
+            .query(&bow, usize::MAX)
+            .into_iter()
+            .filter_map(|(entry, score)| {
+                Some(Hypothesis {
+                    old: self.entry_keyframe[entry]?,
+                    score,
+                    normalised_score: score,
+                    verification: None,
+                })
+            })
+            .collect();
+        self.verify_best(seed, features, &mut hypotheses)
+    }
+
+    /// Verifies the best [`max_verifications`](PlaceRecognitionConfig::max_verifications) of
+    /// `hypotheses` (best first) against the `query` features, recording each result; returns
+    /// the accepted one with the most inliers.
+    fn verify_best(
+        &self,
+        seed: u32,
+        query: &KeyframeFeatures,
+        hypotheses: &mut [Hypothesis],
+    ) -> Option<LoopCandidate> {
         let mut candidate: Option<LoopCandidate> = None;
         for h in hypotheses.iter_mut().take(self.config.max_verifications) {
             let old = &self.keyframes[&h.old].features;
-            let v = verify::verify((query.0, &q.features), (h.old.0, old), &self.config);
+            let v = verify::verify((seed, query), (h.old.0, old), &self.config);
             if let Verification::Accepted {
                 query_from_old,
                 ransac_inliers,
@@ -514,11 +556,7 @@ impl PlaceRecognition {
             }
             h.verification = Some(v);
         }
-        Ok(Detection {
-            normaliser,
-            hypotheses,
-            candidate,
-        })
+        candidate
     }
 }
 
