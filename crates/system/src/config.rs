@@ -336,8 +336,9 @@ pub struct TrackerConfig {
     /// a fronto-parallel plane, no longer predicts the patch (PTAM's visibility test).
     pub max_view_angle_deg: f64,
     /// Inliers (after motion-only BA) for a good frame. 40: twenty times over-determined.
+    /// After a lost frame the next must be good to count as tracked (a weak one stays lost).
     pub min_good: usize,
-    /// Inliers below which the frame is lost (its pose is then the prior). 12: a six-DoF pose
+    /// Inliers below which the frame is lost (it then has no pose). 12: a six-DoF pose
     /// from 3D measurements is over-determined sixfold, with margin for the outliers the χ²
     /// gate lets through.
     pub min_tracked: usize,

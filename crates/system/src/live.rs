@@ -552,9 +552,12 @@ impl LiveSystem {
             }
             None => None,
         };
+        // A lost frame has no pose: the prior it was searched around is a guess (after a jump,
+        // metres off), not an estimate, and the trajectory holds estimates only.
+        let lost = matches!(state, TrackingState::Lost(_));
         self.push_frame(
             frame,
-            Some(camera_from_world),
+            (!lost).then_some(camera_from_world),
             state.clone(),
             keyframe.as_ref().map(|(k, _)| *k).or(Some(reference)),
         );
