@@ -1,0 +1,165 @@
+#!/usr/bin/env python3
+"""Kidnapped cameras: dwslam (relocalisation) beside ORB-SLAM3 on sequences with a stretch of
+frames cut out, so that the camera jumps and no motion model bridges the gap.
+
+    bench/live/kidnap.py --dwslam target/release/dwslam --out OUT [--data DIR] [--peers DIR]
+        [--venv DIR] [--rendered DIR] [--orb-runs 2] [--cpu 1]
+
+The cut sequences are folders of symbolic links into the shared data (and the rendered
+courtyard) under OUT/sequences:
+
+- 7-Scenes, frames 301-619 cut: the camera jumps 1.5 m to the place it saw around frame 200
+  (PROVENANCE.md: frames 136-205 are revisited at 616-680) - a jump into the map;
+- 7-Scenes, frames 301-399 cut: a jump to the far side of the table, which the map has not seen;
+  it comes back into view around frame 480;
+- the rendered courtyard (stereo, `dwslam render courtyard --sensor stereo --layout kitti`),
+  frames 1500-2199 cut: half a lap skipped.
+
+7-Scenes runs on its frames with depth (dwslam `--depth-frames-only`, ORB-SLAM3 RGB-D on
+associations.txt). dwslam runs deterministic, ORB-SLAM3 `--orb-runs` times (it is not
+deterministic), each pinned to one core. ATE by evo_ape -a (SE(3)) over the frames each system
+gave a pose, live and after the run, beside the fraction of frames tracked. Prints a markdown
+table (also OUT/table.md).
+"""
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.abspath(os.path.join(HERE, "../.."))
+ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+ap.add_argument("--dwslam", required=True)
+ap.add_argument("--out", required=True)
+ap.add_argument("--data", default=os.environ.get("DWSLAM_DATA", os.path.join(ROOT, "../shared/data")))
+ap.add_argument("--peers", default=os.path.join(ROOT, "../shared/peers/live"))
+ap.add_argument("--venv", default=os.environ.get("LIVE_PEERS_VENV", os.path.expanduser("~/.cache/dwslam-live-peers")))
+ap.add_argument("--rendered", help="folder holding courtyard-stereo (rendered there when missing); omit to skip it")
+ap.add_argument("--orb-runs", type=int, default=2)
+ap.add_argument("--cpu", type=int, default=1)
+a = ap.parse_args()
+a.out = os.path.abspath(a.out)
+evo = os.path.join(a.venv, "bin", "evo_ape")
+SEVEN = os.path.join(a.data, "seven_scenes_redkitchen_1000")
+
+
+def frame_number(line):
+    """7-Scenes list line -> its frame number (`rgb/frame-000123.color.jpg` -> 123)."""
+    return int(re.search(r"frame-(\d+)", line).group(1))
+
+
+def seven_scenes_cut(name, first, last):
+    """7-Scenes without frames first..=last: a dwslam folder and run_peer.py's data root."""
+    root = os.path.join(a.out, "sequences", name)
+    seq = os.path.join(root, "seven_scenes_redkitchen_1000")
+    os.makedirs(seq, exist_ok=True)
+    for f in ["rgb", "depth", "pose", "camera-intrinsics.txt", "gravity-direction.txt", "groundtruth_tum.txt"]:
+        link = os.path.join(seq, f)
+        if not os.path.lexists(link):
+            os.symlink(os.path.join(SEVEN, f), link)
+    for f in ["rgb.txt", "depth.txt", "associations.txt"]:
+        with open(os.path.join(SEVEN, f)) as src, open(os.path.join(seq, f), "w") as dst:
+            for line in src:
+                if line.startswith("#") or not line.strip() or not first <= frame_number(line) <= last:
+                    dst.write(line)
+    return seq, root
+
+
+def kitti_cut(name, source, first, last):
+    """A KITTI-layout folder without frames first..=last (renumbered links)."""
+    seq = os.path.join(a.out, "sequences", name)
+    for cam in ["image_0", "image_1"]:
+        os.makedirs(os.path.join(seq, cam), exist_ok=True)
+    times = [l for l in open(os.path.join(source, "times.txt")) if l.strip()]
+    poses = [l for l in open(os.path.join(source, "poses.txt")) if l.strip()]
+    keep = [i for i in range(len(times)) if not first <= i <= last]
+    with open(os.path.join(seq, "times.txt"), "w") as ft, open(os.path.join(seq, "poses.txt"), "w") as fp:
+        for j, i in enumerate(keep):
+            ft.write(times[i])
+            fp.write(poses[i])
+            for cam in ["image_0", "image_1"]:
+                link = os.path.join(seq, cam, f"{j:06d}.png")
+                if not os.path.lexists(link):
+                    os.symlink(os.path.join(source, cam, f"{i:06d}.png"), link)
+    link = os.path.join(seq, "calib.txt")
+    if not os.path.lexists(link):
+        os.symlink(os.path.join(source, "calib.txt"), link)
+    return seq
+
+
+def ate(gt, est):
+    p = subprocess.run([evo, "tum", gt, est, "-a", "--t_max_diff", "0.02"], capture_output=True, text=True)
+    m = re.search(r"rmse\s+([0-9.eE+-]+)", p.stdout)
+    return float(m.group(1)) if m else None
+
+
+def dwslam(name, seq, extra):
+    out = os.path.join(a.out, "dwslam-" + name)
+    cmd = ["taskset", "-c", str(a.cpu), a.dwslam, "run", seq, *extra, "--deterministic", "--quiet", "--out", out]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        sys.exit(f"{' '.join(cmd)} failed:\n{p.stderr[-2000:]}")
+    s = json.load(open(os.path.join(out, "summary.json")))
+    gt = os.path.join(out, "ground_truth.tum")
+    return {
+        "ate_live": ate(gt, os.path.join(out, "trajectory.tum")),
+        "ate_final": ate(gt, os.path.join(out, "trajectory_final.tum")),
+        "tracked": (s["tracking"]["good"] + s["tracking"]["weak"]) / s["frames"],
+        "relocalisations": [(r["frame"], r["keyframe_frame"]) for r in s.get("relocalisations", [])],
+    }
+
+
+def orbslam3(name, peer_seq, extra, run):
+    out = os.path.join(a.out, f"orbslam3-{name}-{run}")
+    cmd = ["taskset", "-c", str(a.cpu), os.path.join(a.venv, "bin", "python"),
+           os.path.join(a.peers, "run_peer.py"), "orbslam3", peer_seq, out, *extra]
+    env = {**os.environ, "PATH": os.path.join(a.venv, "bin") + ":" + os.environ["PATH"], "OMP_NUM_THREADS": "1"}
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    lines = [l for l in p.stdout.splitlines() if l.startswith("{")]
+    if not lines:
+        return {"error": (p.stdout + p.stderr)[-500:]}
+    r = json.loads(lines[-1])
+    return {"ate_live": r.get("ate_rmse_online_m"), "ate_final": r.get("ate_rmse_m"),
+            "tracked": r.get("tracked_frac"), "lost": r.get("lost_frames")}
+
+
+cases = []
+seq, root = seven_scenes_cut("7scenes-jump-into-map", 301, 619)
+cases.append(("7-Scenes RGB-D, frames 301-619 cut (a jump into the map)", "7scenes-jump-into-map",
+              seq, ["--depth-frames-only"], "7scenes", ["--data", root]))
+seq, root = seven_scenes_cut("7scenes-jump-off-map", 301, 399)
+cases.append(("7-Scenes RGB-D, frames 301-399 cut (a jump off the map)", "7scenes-jump-off-map",
+              seq, ["--depth-frames-only"], "7scenes", ["--data", root]))
+if a.rendered:
+    courtyard = os.path.join(a.rendered, "courtyard-stereo")
+    if not os.path.isdir(courtyard):
+        subprocess.run([a.dwslam, "render", "courtyard", "--sensor", "stereo", "--layout", "kitti",
+                        "--out", courtyard], check=True)
+    seq = kitti_cut("courtyard-stereo-cut", courtyard, 1500, 2199)
+    cases.append(("rendered courtyard stereo, frames 1500-2199 cut", "courtyard-cut", seq, ["--sensor", "stereo"],
+                  "kitti-dir-stereo", ["--dir", seq]))
+
+cm = lambda x: "—" if x is None else f"{100 * x:.2f} cm"
+rng = lambda xs: "—" if not xs else (cm(min(xs)) if min(xs) == max(xs) else f"{100 * min(xs):.2f}–{cm(max(xs))}")
+table = ["| sequence | system | ATE live | ATE after the run | tracked | relocalised (frame ← keyframe's frame, positions in the cut sequence) |",
+         "|---|---|---|---|---|---|"]
+print("\n".join(table), flush=True)
+results = {}
+for title, name, seq, extra, peer_seq, peer_extra in cases:
+    d = dwslam(name, seq, extra)
+    o = [orbslam3(name, peer_seq, peer_extra, i) for i in range(a.orb_runs)]
+    results[name] = {"dwslam": d, "orbslam3": o}
+    ok = [r for r in o if "error" not in r]
+    rows = [f"| {title} | dwslam (deterministic) | {cm(d['ate_live'])} | {cm(d['ate_final'])} | "
+            f"{100 * d['tracked']:.1f} % | {', '.join(f'{f} ← {k}' for f, k in d['relocalisations']) or '—'} |",
+            f"| | ORB-SLAM3 ({len(ok)} runs) | {rng([r['ate_live'] for r in ok if r['ate_live'] is not None])} | "
+            f"{rng([r['ate_final'] for r in ok if r['ate_final'] is not None])} | "
+            f"{', '.join('%.1f %%' % (100 * r['tracked']) for r in ok if r['tracked'] is not None)} | |"]
+    print("\n".join(rows), flush=True)
+    table += rows
+with open(os.path.join(a.out, "table.md"), "w") as f:
+    f.write("\n".join(table) + "\n")
+with open(os.path.join(a.out, "results.json"), "w") as f:
+    json.dump(results, f, indent=1)
