@@ -116,9 +116,9 @@ pub struct LoopEvent {
 pub struct Relocalisation {
     /// The frame (its index in the sequence).
     pub frame: usize,
-    /// The keyframe whose place it recognised, and the frame that keyframe was made from.
+    /// The keyframe whose place it recognised.
     pub keyframe: KeyframeId,
-    /// The keyframe's frame.
+    /// The frame that keyframe was made from.
     pub keyframe_frame: usize,
     /// Inliers of the appearance matches' RANSAC.
     pub ransac_inliers: usize,
