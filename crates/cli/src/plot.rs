@@ -22,11 +22,13 @@ fn register_font() {
 /// How a series is drawn.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Style {
-    /// A polyline through the points.
+    /// A polyline through the points, broken where a point is not finite.
     Line,
     /// A dot per point (scatter plots of the experiments).
     Points,
-    /// A dashed polyline (a second family of curves beside `Line`).
+    /// A ring per point: a few events marked on other series (e.g. relocalisations).
+    Markers,
+    /// A dashed polyline (a second family of curves beside `Line`), broken like `Line`.
     Dashed,
     /// Separate line segments: points `2i` and `2i + 1` joined (graph edges).
     Segments,
@@ -126,6 +128,46 @@ fn bounds(series: &[Series], log_y: bool) -> Option<(f64, f64, f64, f64)> {
     Some((x0, x1, y0, y1))
 }
 
+/// The corner of the plot where the legend hides the fewest points: of the four corner boxes
+/// (45 % of the width, 30 % of the height), the one holding the fewest; upper right on a tie.
+fn legend_corner(
+    series: &[Series],
+    (x0, x1, y0, y1): (f64, f64, f64, f64),
+    log_y: bool,
+) -> SeriesLabelPosition {
+    let y_of = |y: f64| {
+        if log_y {
+            y.max(f64::MIN_POSITIVE).log10()
+        } else {
+            y
+        }
+    };
+    let (ya, yb) = (y_of(y0), y_of(y1));
+    let corners = [
+        (SeriesLabelPosition::UpperRight, true, true),
+        (SeriesLabelPosition::UpperLeft, false, true),
+        (SeriesLabelPosition::LowerRight, true, false),
+        (SeriesLabelPosition::LowerLeft, false, false),
+    ];
+    let count = |right: bool, upper: bool| {
+        series
+            .iter()
+            .flat_map(|s| &s.points)
+            .filter(|(x, y)| x.is_finite() && y.is_finite())
+            .filter(|&&(x, y)| {
+                let fx = (x - x0) / (x1 - x0);
+                let fy = (y_of(y) - ya) / (yb - ya);
+                (if right { fx > 0.55 } else { fx < 0.45 })
+                    && (if upper { fy > 0.7 } else { fy < 0.3 })
+            })
+            .count()
+    };
+    corners
+        .into_iter()
+        .min_by_key(|&(_, right, upper)| count(right, upper))
+        .map_or(SeriesLabelPosition::UpperRight, |(p, _, _)| p)
+}
+
 fn draw<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     figure: &Figure,
@@ -181,22 +223,52 @@ where
                 .map_err(|e| anyhow::anyhow!("{e:?}"))?;
             for s in series {
                 let color = s.color;
-                let pts: Vec<(f64, f64)> = s
-                    .points
-                    .iter()
-                    .copied()
-                    .filter(|(x, y)| x.is_finite() && y.is_finite() && (!figure.log_y || *y > 0.0))
-                    .collect();
+                // A polyline breaks where a point is not finite (a gap: frames without a pose).
+                let keep = |&(x, y): &(f64, f64)| {
+                    x.is_finite() && y.is_finite() && (!figure.log_y || y > 0.0)
+                };
+                let mut runs: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+                for p in &s.points {
+                    match (keep(p), runs.last_mut()) {
+                        (true, Some(run)) => run.push(*p),
+                        (false, Some(run)) if !run.is_empty() => runs.push(Vec::new()),
+                        _ => {}
+                    }
+                }
+                runs.retain(|r| !r.is_empty());
+                let pts: Vec<(f64, f64)> = runs.concat();
                 let anno = match s.style {
-                    Style::Line => chart
-                        .draw_series(LineSeries::new(pts, color.stroke_width(2)))
-                        .map_err(|e| anyhow::anyhow!("{e:?}"))?,
+                    Style::Line => {
+                        let last = runs.pop().unwrap_or_default();
+                        for r in runs {
+                            chart
+                                .draw_series(LineSeries::new(r, color.stroke_width(2)))
+                                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+                        }
+                        chart
+                            .draw_series(LineSeries::new(last, color.stroke_width(2)))
+                            .map_err(|e| anyhow::anyhow!("{e:?}"))?
+                    }
                     Style::Points => chart
                         .draw_series(pts.into_iter().map(|p| Circle::new(p, 2, color.filled())))
                         .map_err(|e| anyhow::anyhow!("{e:?}"))?,
-                    Style::Dashed => chart
-                        .draw_series(DashedLineSeries::new(pts, 8, 6, color.stroke_width(2)))
+                    Style::Markers => chart
+                        .draw_series(
+                            pts.into_iter()
+                                .map(|p| Circle::new(p, 7, color.stroke_width(3))),
+                        )
                         .map_err(|e| anyhow::anyhow!("{e:?}"))?,
+                    Style::Dashed => {
+                        let last = runs.pop().unwrap_or_default();
+                        for r in runs {
+                            chart
+                                .draw_series(DashedLineSeries::new(r, 8, 6, color.stroke_width(2)))
+                                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+                        }
+                        chart
+                            .draw_series(DashedLineSeries::new(last, 8, 6, color.stroke_width(2)))
+                            .map_err(|e| anyhow::anyhow!("{e:?}"))?
+                    }
                     Style::Segments => chart
                         .draw_series(
                             s.points
@@ -215,6 +287,7 @@ where
             if series.iter().any(|s| !s.label.is_empty()) {
                 chart
                     .configure_series_labels()
+                    .position(legend_corner(series, (x0, x1, y0, y1), figure.log_y))
                     .background_style(WHITE.mix(0.85))
                     .border_style(BLACK)
                     .label_font(("sans-serif", 16))
@@ -460,6 +533,43 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The legend goes to the emptiest corner: with the data in the upper half (the right
+    /// upper corner fullest), not the default upper right; with nothing anywhere, upper right.
+    #[test]
+    fn the_legend_takes_the_emptiest_corner() {
+        let series = |points: Vec<(f64, f64)>| Series {
+            label: "s".into(),
+            points,
+            color: BLACK,
+            style: Style::Points,
+        };
+        let upper: Vec<(f64, f64)> = (0..100)
+            .map(|i| (i as f64 / 100.0, 0.8 + 0.2 * (i % 7) as f64 / 7.0))
+            .chain((0..20).map(|i| (0.9, 0.75 + 0.01 * i as f64)))
+            .collect();
+        let bounds = (0.0, 1.0, 0.0, 1.0);
+        let corner = legend_corner(&[series(upper)], bounds, false);
+        assert!(
+            matches!(
+                corner,
+                SeriesLabelPosition::LowerLeft | SeriesLabelPosition::LowerRight
+            ),
+            "{corner:?}"
+        );
+        let lower_left: Vec<(f64, f64)> = vec![(0.1, 0.1), (0.2, 0.2), (0.9, 0.1), (0.1, 0.9)];
+        let corner = legend_corner(&[series(lower_left)], bounds, false);
+        assert!(
+            matches!(corner, SeriesLabelPosition::UpperRight),
+            "{corner:?}"
+        );
+        // NaN breaks are not points.
+        let corner = legend_corner(&[series(vec![(f64::NAN, f64::NAN)])], bounds, false);
+        assert!(
+            matches!(corner, SeriesLabelPosition::UpperRight),
+            "{corner:?}"
+        );
+    }
 
     #[test]
     fn significant_digits_trim_floating_point_noise() {

@@ -744,6 +744,25 @@ fn top_axes(points: impl Iterator<Item = nalgebra::Vector3<f64>>) -> (usize, usi
 
 /// The report: trajectory against ground truth (top view), the keyframe graph with its loop
 /// edges, time per frame and per keyframe, tracked points per frame.
+/// The points of `(timestamp, point)` samples in time order, with a break (a `NaN` point,
+/// which [`plot::plot`] does not join across) where two samples are more than `gap` seconds
+/// apart.
+fn broken_at_gaps(
+    samples: impl IntoIterator<Item = (f64, (f64, f64))>,
+    gap: f64,
+) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    let mut last: Option<f64> = None;
+    for (t, p) in samples {
+        if last.is_some_and(|l| t - l > gap) {
+            out.push((f64::NAN, f64::NAN));
+        }
+        out.push(p);
+        last = Some(t);
+    }
+    out
+}
+
 fn report<const N: usize>(
     out: &Path,
     result: &RunResult<N>,
@@ -764,51 +783,100 @@ fn report<const N: usize>(
         let t = p.translation();
         (t[a], t[b])
     };
-    // Trajectories, aligned to the ground truth where there is one.
+    // Trajectories, aligned to the ground truth where there is one, as (timestamp, point).
     let mut series = Vec::new();
-    let aligned = |traj: &Trajectory| -> Vec<(f64, f64)> {
-        match ground_truth {
-            Some(gt) => {
-                let pairs = associate(&gt.timestamps, &traj.timestamps, 0.02, 0.0);
-                let r: Vec<Se3> = pairs.iter().map(|&(i, _)| gt.world_from_body[i]).collect();
-                let e: Vec<Se3> = pairs
-                    .iter()
-                    .map(|&(_, j)| traj.world_from_body[j])
-                    .collect();
-                match ate(&r, &e, alignment) {
-                    Ok(al) => e
-                        .iter()
-                        .map(|p| {
-                            let t = al.reference_from_estimate.act(p.translation());
-                            (t[a], t[b])
-                        })
-                        .collect(),
-                    Err(_) => traj.world_from_body.iter().map(xz).collect(),
-                }
-            }
-            None => traj.world_from_body.iter().map(xz).collect(),
+    let aligned = |traj: &Trajectory| -> Vec<(f64, (f64, f64))> {
+        let unaligned = || {
+            traj.timestamps
+                .iter()
+                .zip(&traj.world_from_body)
+                .map(|(t, p)| (*t, xz(p)))
+                .collect()
+        };
+        let Some(gt) = ground_truth else {
+            return unaligned();
+        };
+        let pairs = associate(&gt.timestamps, &traj.timestamps, 0.02, 0.0);
+        let r: Vec<Se3> = pairs.iter().map(|&(i, _)| gt.world_from_body[i]).collect();
+        let e: Vec<Se3> = pairs
+            .iter()
+            .map(|&(_, j)| traj.world_from_body[j])
+            .collect();
+        match ate(&r, &e, alignment) {
+            Ok(al) => pairs
+                .iter()
+                .zip(&e)
+                .map(|(&(_, j), p)| {
+                    let t = al.reference_from_estimate.act(p.translation());
+                    (traj.timestamps[j], (t[a], t[b]))
+                })
+                .collect(),
+            Err(_) => unaligned(),
         }
     };
+    // Lines break where the frames in between have no pose (lost, or not in the sequence):
+    // more than three frame intervals between two samples.
+    let mut intervals: Vec<f64> = result
+        .record
+        .frames
+        .windows(2)
+        .map(|w| w[1].timestamp - w[0].timestamp)
+        .filter(|d| *d > 0.0)
+        .collect();
+    intervals.sort_by(f64::total_cmp);
+    let gap = 3.0
+        * intervals
+            .get(intervals.len() / 2)
+            .copied()
+            .unwrap_or(f64::INFINITY);
     if let Some(gt) = ground_truth {
+        let samples = gt
+            .timestamps
+            .iter()
+            .copied()
+            .zip(gt.world_from_body.iter().map(xz));
         series.push(Series {
             label: "ground truth".into(),
-            points: gt.world_from_body.iter().map(xz).collect(),
+            points: broken_at_gaps(samples, gap),
             color: GREY,
             style: Style::Line,
         });
     }
+    let live_points = aligned(&live);
     series.push(Series {
         label: "every frame, live".into(),
-        points: aligned(&live),
+        points: broken_at_gaps(live_points.iter().copied(), gap),
         color: PALETTE[0],
         style: Style::Line,
     });
     series.push(Series {
         label: "every frame, after the final optimisation".into(),
-        points: aligned(&result.final_trajectory),
+        points: broken_at_gaps(aligned(&result.final_trajectory), gap),
         color: PALETTE[1],
         style: Style::Dashed,
     });
+    if !result.relocalisations.is_empty() {
+        let stamp = |index: usize| {
+            let f = result.record.frames.iter().find(|f| f.index == index)?;
+            Some(f.timestamp)
+        };
+        series.push(Series {
+            label: format!("relocalised ({})", result.relocalisations.len()),
+            points: result
+                .relocalisations
+                .iter()
+                .filter_map(|r| {
+                    let t = stamp(r.frame)?;
+                    live_points
+                        .iter()
+                        .find(|(s, _)| (s - t).abs() < 1e-6)
+                        .map(|(_, p)| *p)
+                })
+                .collect(),
+            color: PALETTE[2],
+            style: Style::Markers,
+        });
+    }
     plot::plot(
         &out.join("trajectory.png"),
         &Figure {
@@ -981,4 +1049,27 @@ fn report<const N: usize>(
         ],
     )?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A line breaks (a `NaN` point) exactly where two samples are more than the gap apart.
+    #[test]
+    fn trajectories_break_at_gaps_in_time() {
+        let samples = [0.0, 0.1, 0.2, 0.9, 1.0, 1.35]
+            .into_iter()
+            .map(|t| (t, (t, 2.0 * t)));
+        let points = broken_at_gaps(samples, 0.3);
+        let breaks: Vec<usize> = points
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.0.is_nan())
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(breaks, vec![3, 6]);
+        assert_eq!(points.len(), 8);
+        assert_eq!(points[4], (0.9, 1.8));
+    }
 }
