@@ -503,7 +503,8 @@ fn monocular_loop_recovers_the_scale_drift() {
 /// their place without any neighbourhood or pose. The revisit of frames 136–205 (616–680)
 /// must be found, at the ground truth's relative pose to the imprecision bound of the loops
 /// above (10 cm, 5°: the colour camera is not calibrated); frames of the second half (320–600,
-/// much of it unmapped) may be found or not, but never at a wrong pose.
+/// every 20th; 340–460 look at the unmapped far side) may be found or not, but never at a
+/// wrong pose. (Verifying 10 hypotheses instead of 3 finds the same frames.)
 #[test]
 fn a_lost_frame_is_found_among_the_keyframes_at_its_true_pose() {
     use system::place_recognition::features;
@@ -551,7 +552,7 @@ fn a_lost_frame_is_found_among_the_keyframes_at_its_true_pose() {
         found
     };
     let revisits: Vec<_> = (616..=680).step_by(8).map(query).collect();
-    let elsewhere: Vec<_> = (320..=600).step_by(40).map(query).collect();
+    let elsewhere: Vec<_> = (320..=600).step_by(20).map(query).collect();
     for (frame, e, r) in revisits.iter().chain(&elsewhere).flatten() {
         assert!(
             *e < IMPRECISE_TRANSLATION && *r < IMPRECISE_ROTATION_DEG,
