@@ -466,6 +466,10 @@ pub struct StereoConfig {
     /// 0.84 / 0.79 cm, room stereo 0.12 / 0.12 against 0.13 / 0.13 cm, KITTI 6.09 / 5.29
     /// against 7.03 / 6.35 cm, EuRoC 0.06 cm both.
     pub level: usize,
+    /// Threads block matching runs on, each on a horizontal band of the image (the same
+    /// disparities bit for bit: `vision::stereo::StereoMatcher::compute_in_bands`); `None`: the
+    /// cores this process may run on (one under `taskset -c N`, as in `bench/live`).
+    pub threads: Option<usize>,
 }
 
 impl Default for StereoConfig {
@@ -476,11 +480,19 @@ impl Default for StereoConfig {
             max_disparity: None,
             block_radius: 4,
             level: 0,
+            threads: None,
         }
     }
 }
 
 impl StereoConfig {
+    /// The threads of block matching ([`StereoConfig::threads`]).
+    pub fn threads(&self) -> usize {
+        self.threads.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+        })
+    }
+
     /// The largest disparity searched for a camera of focal length `focal` (pixels).
     pub fn max_disparity_for(&self, focal: f64) -> usize {
         self.max_disparity
@@ -599,6 +611,9 @@ impl SystemConfig {
                 "stereo.level ({}) must be below tracker.pyramid_levels ({})",
                 self.stereo.level, self.tracker.pyramid_levels
             ));
+        }
+        if self.stereo.threads == Some(0) {
+            return bad("stereo.threads must be at least 1".into());
         }
         if self.stereo.max_disparity == Some(0) {
             return bad("stereo.max_disparity must be at least 1".into());
@@ -756,5 +771,10 @@ mod tests {
         assert!(e.to_string().contains("stereo.level"), "{e}");
         let c = SystemConfig::from_yaml("stereo:\n  level: 1\n").unwrap();
         assert_eq!(c.stereo.level, 1);
+        let e = SystemConfig::from_yaml("stereo:\n  threads: 0\n").unwrap_err();
+        assert!(e.to_string().contains("stereo.threads"), "{e}");
+        let c = SystemConfig::from_yaml("stereo:\n  threads: 3\n").unwrap();
+        assert_eq!(c.stereo.threads(), 3);
+        assert!(SystemConfig::default().stereo.threads() >= 1);
     }
 }

@@ -249,6 +249,8 @@ pub struct SensorFrontEnd {
     stereo: StereoMatcher,
     /// The pyramid level block matching runs at.
     stereo_level: usize,
+    /// Its threads (horizontal bands).
+    stereo_threads: usize,
     fast_threshold: u8,
     levels: usize,
 }
@@ -277,6 +279,7 @@ impl SensorFrontEnd {
             camera,
             kind,
             stereo_level: config.stereo.level,
+            stereo_threads: config.stereo.threads(),
             stereo: StereoMatcher::new(StereoParams {
                 // The same depth range at every level: the full-resolution disparities scaled.
                 max_disparity: config
@@ -318,14 +321,18 @@ impl SensorFrontEnd {
         let scale = 1usize << l;
         let focal = self.camera.pinhole.fx / scale as f64;
         if l == 0 {
-            let disparity = self.stereo.compute(&left.levels[0], right)?;
+            let disparity =
+                self.stereo
+                    .compute_in_bands(&left.levels[0], right, self.stereo_threads)?;
             return Ok(disparity_to_depth(&disparity, focal, self.camera.baseline));
         }
         let mut r = half_sample(right)?;
         for _ in 1..l {
             r = half_sample(&r)?;
         }
-        let disparity = self.stereo.compute(&left.levels[l], &r)?;
+        let disparity = self
+            .stereo
+            .compute_in_bands(&left.levels[l], &r, self.stereo_threads)?;
         let coarse = disparity_to_depth(&disparity, focal, self.camera.baseline);
         let (w, h) = (left.levels[0].width(), left.levels[0].height());
         let (cw, ch) = (coarse.width(), coarse.height());

@@ -76,6 +76,8 @@ pub(super) const LANES: usize = 16;
 pub struct StereoMatcher {
     params: StereoParams,
     buffers: Option<Buffers>,
+    /// The matchers of the other bands of [`StereoMatcher::compute_in_bands`].
+    bands: Vec<StereoMatcher>,
 }
 
 impl Clone for StereoMatcher {
@@ -102,6 +104,7 @@ impl StereoMatcher {
         Self {
             params,
             buffers: None,
+            bands: Vec::new(),
         }
     }
 
@@ -134,6 +137,78 @@ impl StereoMatcher {
             return Ok(out);
         }
         run::<false>(buffers, left, right, &self.params, &mut out);
+        Ok(out)
+    }
+}
+
+impl StereoMatcher {
+    /// Rows above and below a band of output rows that their disparities depend on: the
+    /// census (`c`), the block (`r`) and the shifted windows (`s`) reach that far, and the 3×3
+    /// median one row more.
+    fn band_margin(&self) -> usize {
+        self.params.census_radius.min(3) + self.params.block_radius + self.params.shift_radius + 1
+    }
+
+    /// [`compute`](Self::compute) with the rows split into `bands` horizontal bands, each
+    /// matched on its own thread together with [`band_margin`](Self::band_margin) rows on either
+    /// side (so that its rows see exactly the pixels they see in the whole image): the same
+    /// disparities bit for bit, in about `1/bands` of the time on as many free cores. Each band
+    /// keeps its own buffers between calls. Fewer bands where the image is too short for them.
+    pub fn compute_in_bands(
+        &mut self,
+        left: &GrayImage,
+        right: &GrayImage,
+        bands: usize,
+    ) -> Result<Image<f32>, ImageError> {
+        let (w, h) = check_pair(left, right, &self.params)?;
+        let margin = self.band_margin();
+        // Bands at least four margins high: the margins add at most half a band's work.
+        let bands = bands.min(h / (4 * margin).max(1)).max(1);
+        if bands == 1 {
+            return self.compute(left, right);
+        }
+        let rows = |b: usize| (b * h / bands, (b + 1) * h / bands);
+        let with_margin =
+            |(y0, y1): (usize, usize)| (y0.saturating_sub(margin), (y1 + margin).min(h));
+        let crop = |img: &GrayImage, (y0, y1): (usize, usize)| {
+            let mut data = Vec::with_capacity(w * (y1 - y0));
+            for y in y0..y1 {
+                data.extend_from_slice(img.row(y));
+            }
+            GrayImage::from_vec(w, y1 - y0, w, data).expect("whole rows")
+        };
+        let params = self.params;
+        let mut others = std::mem::take(&mut self.bands);
+        others.resize_with(bands - 1, || StereoMatcher::new(params));
+        let results = std::thread::scope(|scope| {
+            let handles: Vec<_> = others
+                .iter_mut()
+                .enumerate()
+                .map(|(i, m)| {
+                    let span = with_margin(rows(i + 1));
+                    let (l, r) = (crop(left, span), crop(right, span));
+                    scope.spawn(move || m.compute(&l, &r))
+                })
+                .collect();
+            let span = with_margin(rows(0));
+            let first = self.compute(&crop(left, span), &crop(right, span));
+            std::iter::once(first)
+                .chain(
+                    handles
+                        .into_iter()
+                        .map(|h| h.join().expect("a band does not panic")),
+                )
+                .collect::<Vec<_>>()
+        });
+        self.bands = others;
+        let mut out = Image::filled(w, h, f32::NAN);
+        for (b, band) in results.into_iter().enumerate() {
+            let band = band?;
+            let ((y0, y1), (top, _)) = (rows(b), with_margin(rows(b)));
+            for y in y0..y1 {
+                out.row_mut(y).copy_from_slice(band.row(y - top));
+            }
+        }
         Ok(out)
     }
 }

@@ -430,6 +430,47 @@ mod tests {
         assert!(good as f64 > 0.95 * total as f64, "{good}/{total}");
     }
 
+    /// Matching in horizontal bands on threads gives the whole image's disparities bit for
+    /// bit (NaNs included): every band sees the rows its disparities depend on. Several
+    /// parameter sets (margins 3 to 10 rows), band counts that do and do not divide the height,
+    /// more bands than the image has room for, and a second call reusing the bands' buffers.
+    #[test]
+    fn matching_in_bands_equals_the_whole_image() {
+        for (seed, (w, h, nd, br, sr, cr, median)) in [
+            (160, 97, 32, 4, 2, 3, true),
+            (100, 290, 24, 4, 2, 3, true),
+            (120, 64, 16, 2, 0, 3, true),
+            (90, 50, 20, 3, 1, 1, false),
+            (70, 23, 8, 4, 2, 3, true),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let right = random_texture(w + 4, h, 10 + seed as u64);
+            let left = GrayImage::from_fn(w, h, |u, v| right.get(u + (u * 4 / w), v));
+            let right = GrayImage::from_fn(w, h, |u, v| right.get(u, v));
+            let params = StereoParams {
+                max_disparity: nd,
+                block_radius: br,
+                shift_radius: sr,
+                census_radius: cr,
+                median_filter: median,
+                ..StereoParams::default()
+            };
+            let want = block_match(&left, &right, &params).unwrap();
+            let bits = |d: &Image<f32>| -> Vec<u32> {
+                (0..h)
+                    .flat_map(|y| d.row(y).iter().map(|x| x.to_bits()).collect::<Vec<_>>())
+                    .collect()
+            };
+            let mut matcher = StereoMatcher::new(params);
+            for bands in [1, 2, 3, 4, 7, 50, 3] {
+                let got = matcher.compute_in_bands(&left, &right, bands).unwrap();
+                assert_eq!(bits(&got), bits(&want), "{w}×{h}, {bands} bands");
+            }
+        }
+    }
+
     #[test]
     fn streaming_simd_and_scalar_equal_the_reference() {
         // (w, h, max disparity, block radius, shift radius, census radius, uniqueness,
