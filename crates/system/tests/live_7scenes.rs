@@ -38,6 +38,21 @@ fn read(path: &Path, options: &OpenOptions, indices: impl Iterator<Item = usize>
         .collect()
 }
 
+/// ATE RMSE (metres, SE(3) alignment) of a run's live trajectory against `gt`, the ground
+/// truth of its frames in order; every frame must have a pose.
+fn live_ate(gt: &[lie::Se3], r: &RunResult) -> f64 {
+    let est: Vec<lie::Se3> = r
+        .record
+        .frames
+        .iter()
+        .map(|f| f.world_from_camera.expect("every frame tracked"))
+        .collect();
+    data::eval::ate(gt, &est, data::eval::Alignment::Se3)
+        .unwrap()
+        .translation
+        .rmse
+}
+
 fn depth_frames() -> OpenOptions {
     OpenOptions {
         require_depth: true,
@@ -107,24 +122,14 @@ fn the_kitchen_revisits_are_closed_as_loops() {
         let d = l.correction.expect("an appearance loop's correction");
         assert!(d.path > 0.0 && d.displacement < 0.2, "{l:?}");
     }
-    let est: Vec<lie::Se3> = r
-        .record
-        .frames
-        .iter()
-        .map(|f| f.world_from_camera.unwrap())
-        .collect();
-    let live = data::eval::ate(&gt, &est, data::eval::Alignment::Se3).unwrap();
+    let live = live_ate(&gt, &r);
     let fin = data::eval::ate(
         &gt,
         &r.final_trajectory.world_from_body,
         data::eval::Alignment::Se3,
     )
     .unwrap();
-    assert!(
-        live.translation.rmse < 0.055,
-        "live ATE {}",
-        live.translation.rmse
-    );
+    assert!(live < 0.055, "live ATE {}", live);
     assert!(
         fin.translation.rmse < 0.05,
         "final ATE {}",
@@ -149,15 +154,9 @@ fn the_threaded_system_tracks_the_same_frames() {
             .iter()
             .all(|f| !matches!(f.state, TrackingState::Lost(_)))
     );
-    let est: Vec<lie::Se3> = threaded
-        .record
-        .frames
-        .iter()
-        .map(|f| f.world_from_camera.unwrap())
-        .collect();
-    let ate = data::eval::ate(&gt, &est, data::eval::Alignment::Se3).unwrap();
+    let ate = live_ate(&gt, &threaded);
     // 4 m of the kitchen in 8 s: a few centimetres (the full runs are in bench/live).
-    assert!(ate.translation.rmse < 0.05, "ATE {}", ate.translation.rmse);
+    assert!(ate < 0.05, "ATE {}", ate);
     assert!(
         !threaded.optimisations.is_empty(),
         "the optimiser ran in its thread"
@@ -285,18 +284,8 @@ fn a_kidnapped_camera_is_relocalised() {
     let gt_of = |index: usize| gt[indices.iter().position(|&i| i == index).unwrap()];
     let apart = (gt_of(first.keyframe_frame).translation() - gt_of(after).translation()).norm();
     assert!(apart < 0.5, "{first:?}: {apart} m apart");
-    let est: Vec<lie::Se3> = r
-        .record
-        .frames
-        .iter()
-        .map(|f| f.world_from_camera.unwrap())
-        .collect();
-    let live = data::eval::ate(&gt, &est, data::eval::Alignment::Se3).unwrap();
-    assert!(
-        live.translation.rmse < 0.05,
-        "live ATE {}",
-        live.translation.rmse
-    );
+    let live = live_ate(&gt, &r);
+    assert!(live < 0.05, "live ATE {}", live);
 }
 
 /// A kidnap to a place the map has not seen: up to frame 300, then from frame 400 on (the
@@ -357,13 +346,11 @@ fn a_camera_kidnapped_to_an_unmapped_place_stays_lost_until_it_sees_the_map() {
         .filter_map(|f| Some((truth[&f.index], f.world_from_camera?)))
         .unzip();
     assert!(est.len() + lost.len() == r.record.frames.len() && est.len() > 200);
-    let live = data::eval::ate(&gt, &est, data::eval::Alignment::Se3).unwrap();
-    assert!(
-        live.translation.rmse < 0.05,
-        "live ATE {} over {} frames",
-        live.translation.rmse,
-        est.len()
-    );
+    let live = data::eval::ate(&gt, &est, data::eval::Alignment::Se3)
+        .unwrap()
+        .translation
+        .rmse;
+    assert!(live < 0.05, "live ATE {} over {} frames", live, est.len());
 }
 
 #[test]

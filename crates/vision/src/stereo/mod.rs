@@ -401,6 +401,22 @@ mod tests {
         crate::pyramid::gaussian_blur(&noise, 0.8)
     }
 
+    /// A `w × h` rectified pair of a slanted textured plane: disparity `⌊u·slope/w⌋` (0 at the
+    /// left edge, just under `slope` at the right), both images crops of a texture `pad`
+    /// (> `slope`) pixels wider.
+    fn slanted_pair(
+        w: usize,
+        h: usize,
+        seed: u64,
+        pad: usize,
+        slope: usize,
+    ) -> (GrayImage, GrayImage) {
+        let texture = random_texture(w + pad, h, seed);
+        let left = GrayImage::from_fn(w, h, |u, v| texture.get(u + (u * slope / w), v));
+        let right = GrayImage::from_fn(w, h, |u, v| texture.get(u, v));
+        (left, right)
+    }
+
     #[test]
     fn recovers_constant_disparity() {
         let right = random_texture(120, 60, 1);
@@ -446,9 +462,7 @@ mod tests {
         .into_iter()
         .enumerate()
         {
-            let right = random_texture(w + 4, h, 10 + seed as u64);
-            let left = GrayImage::from_fn(w, h, |u, v| right.get(u + (u * 4 / w), v));
-            let right = GrayImage::from_fn(w, h, |u, v| right.get(u, v));
+            let (left, right) = slanted_pair(w, h, 10 + seed as u64, 4, 4);
             let params = StereoParams {
                 max_disparity: nd,
                 block_radius: br,
@@ -495,9 +509,7 @@ mod tests {
             (60, 26, 20, 0, 0, 3, 0.0, 1.0, true),
         ];
         for (seed, (w, h, nd, br, sr, cr, uniq, lr, median)) in cases.into_iter().enumerate() {
-            let right = random_texture(w + 5, h, seed as u64);
-            let left = GrayImage::from_fn(w, h, |u, v| right.get(u + (u * 3 / w), v));
-            let right = GrayImage::from_fn(w, h, |u, v| right.get(u, v));
+            let (left, right) = slanted_pair(w, h, seed as u64, 5, 3);
             let params = StereoParams {
                 max_disparity: nd,
                 block_radius: br,
