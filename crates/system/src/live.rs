@@ -868,7 +868,7 @@ impl LiveSystem {
             for (k, old, d) in &closer.refused {
                 refused.push(format!(
                     "a loop by appearance from frame {} to frame {} was refused: it moves the \
-                     keyframe by {:.2} m, more than the drift allowed over the {:.1} m since \
+                     keyframe by {:.2} m, more than the drift allowed over the {:.1} m path \
                      ({:.2} m; a place that looks like another)",
                     frame_of(*k),
                     frame_of(*old),

@@ -1240,7 +1240,7 @@ impl LiveRun<2> for MonoSystem {
         if self.rejected_loops > 0 {
             warnings.push(format!(
                 "{} loops found by appearance were refused: each needed more than {:.0} % of \
-                 the path since the old place as drift (a place that looks like another)",
+                 the path between the two places as drift (a place that looks like another)",
                 self.rejected_loops,
                 MAX_DRIFT_FRACTION * 100.0
             ));

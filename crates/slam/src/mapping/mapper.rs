@@ -63,15 +63,15 @@ impl MappingConfig {
     ///   to refine; a measurement waits 10 keyframes for such a partner;
     /// - 10 correspondences for an appearance loop: a Sim(3) has 7 degrees of freedom and
     ///   each correspondence gives 3 equations, so 10 over-determine it more than fourfold;
-    /// - an appearance loop may move the new keyframe by 5 % of the path since the old place,
-    ///   or a tenth of the old place's scene depth if more: stereo and RGB-D odometry drift by
-    ///   1–2 % of the distance on KITTI's benchmark (0.4 % on the KITTI snippet here, mostly
-    ///   its scale), and a tenth of the scene depth is the keyframe criterion's coverage, so
-    ///   within it the two views are one place whatever the path (over a short path the loop's
-    ///   own pose error is larger than the drift). The rendered courtyard's repeated façades
-    ///   gave verified loops needing 20.6 m over a 163 m path (12.6 %), which broke the map;
-    ///   the true loops of the rendered room, the courtyard and 7-Scenes needed at most 5 %
-    ///   by their RANSAC poses, over paths of 1–7 m, and far less after the refinement.
+    /// - an appearance loop may move the new keyframe by 5 % of the path between the two places in
+    ///   the graph ([`LoopDrift::path`]), or a tenth of the old place's scene depth if more: stereo
+    ///   and RGB-D odometry drift by 1–2 % of the distance on KITTI's benchmark (0.4 % on the KITTI
+    ///   snippet here, mostly its scale), and a tenth of the scene depth is the keyframe
+    ///   criterion's coverage, so within it the two views are one place whatever the path (over a
+    ///   short path the loop's own pose error is larger than the drift). The rendered courtyard's
+    ///   repeated façades gave verified loops needing 20.6 m over a 163 m path (12.6 %), which
+    ///   broke the map; the true loops of the rendered room, the courtyard and 7-Scenes needed at
+    ///   most 5 % by their RANSAC poses, over paths of 1–7 m, and far less after the refinement.
     pub fn new(sigma: f64, image_size: (f64, f64), measurement_dimension: usize) -> Self {
         MappingConfig {
             theta: 20,
@@ -371,7 +371,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
     /// keyframe explains (a robust motion-only fit, which is also the loop's measurement with
     /// a depth-measuring camera) and, with enough correspondences, inserts
     /// the edge and the matched observations — unless the loop needs more correction than the
-    /// drift over the path since the old place explains ([`MappingConfig::appearance_max_drift`]).
+    /// drift over the path between the two places explains ([`MappingConfig::appearance_max_drift`]).
     pub fn close_appearance_loop(
         &self,
         graph: &mut SlamGraph<N>,
