@@ -243,8 +243,8 @@ pub struct LoopConfig {
     /// Place recognition's thresholds (its `depth_noise` is the system's).
     pub place_recognition: crate::place_recognition::PlaceRecognitionConfig,
     /// A loop by appearance (stereo and RGB-D) may move its keyframe by at most this fraction
-    /// of the path the map joins the two places by (0.05: stereo and RGB-D odometry drift by 1–2 % of the
-    /// distance; `slam::mapping::MappingConfig::new` gives the measurements) ...
+    /// of the path the map joins the two places by (0.05: stereo and RGB-D odometry drift by
+    /// 1–2 % of the distance; `slam::mapping::MappingConfig::new` gives the measurements) ...
     pub max_drift_of_path: f64,
     /// ... or by this fraction of the old place's scene depth, if more (0.1: the keyframe
     /// criterion's coverage, within which the two views are one place whatever the path).

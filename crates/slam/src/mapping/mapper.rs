@@ -371,7 +371,8 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
     /// keyframe explains (a robust motion-only fit, which is also the loop's measurement with
     /// a depth-measuring camera) and, with enough correspondences, inserts
     /// the edge and the matched observations — unless the loop needs more correction than the
-    /// drift over the path between the two places explains ([`MappingConfig::appearance_max_drift`]).
+    /// drift over the path between the two places explains
+    /// ([`MappingConfig::appearance_max_drift`]).
     pub fn close_appearance_loop(
         &self,
         graph: &mut SlamGraph<N>,
