@@ -19,7 +19,9 @@ lock() { if [ -n "${DWSLAM_BUILD_LOCK:-}" ]; then flock "$DWSLAM_BUILD_LOCK" "$@
 lock cargo build -q --release -p dwslam --manifest-path "$ROOT/Cargo.toml"
 DWSLAM_DATA=$DATA bash "$PEERS/setup.sh" >/dev/null
 export DWSLAM_DATA=$DATA OMP_NUM_THREADS=1
+# An array, so that ONLY and RENDERED may hold spaces ("7-Scenes RGB-D").
+opts=()
+[ "${RENDERED:-}" = none ] || opts+=(--rendered "${RENDERED:-$OUT/rendered}")
+[ -z "${ONLY:-}" ] || opts+=(--only "$ONLY")
 lock "$V/bin/python" "$HERE/run.py" --dwslam "$ROOT/target/release/dwslam" --data "$DATA" \
-  --peers "$PEERS" --venv "$V" --out "$OUT" --orb-runs "${ORB_RUNS:-3}" \
-  $( [ "${RENDERED:-}" = none ] || echo --rendered "${RENDERED:-$OUT/rendered}" ) \
-  $( [ -z "${ONLY:-}" ] || echo --only "$ONLY" )
+  --peers "$PEERS" --venv "$V" --out "$OUT" --orb-runs "${ORB_RUNS:-3}" ${opts[@]+"${opts[@]}"}
