@@ -504,6 +504,18 @@ fn drive<S: LiveRun<N>, const N: usize>(
                 .collect::<Vec<_>>()
         ),
     );
+    record.extra.insert(
+        "refused_loops".into(),
+        json!(
+            result
+                .refused_loops
+                .iter()
+                .map(|r| json!({"frame": r.frames.0, "old_frame": r.frames.1,
+                "correction_m": r.drift.displacement, "path_m": r.drift.path,
+                "scene_depth_m": r.drift.scene_depth, "allowed_m": r.allowed}))
+                .collect::<Vec<_>>()
+        ),
+    );
     let dwo: Vec<f64> = result
         .optimisations
         .iter()

@@ -140,6 +140,12 @@ fn a_short_run_writes_every_output() {
         .as_f64()
         .unwrap();
     assert!(live > 0.0 && live < 0.05, "live ATE {live}");
+    // The appearance loops the drift test refused are listed in the summary.
+    assert!(
+        summary["refused_loops"].is_array(),
+        "{}",
+        summary["refused_loops"]
+    );
     // The dense model: a binary PLY with many coloured points.
     let ply = std::fs::read(out.join("dense.ply")).unwrap();
     let header = String::from_utf8_lossy(&ply[..ply.len().min(400)]);

@@ -126,6 +126,19 @@ pub struct Relocalisation {
     pub tracked: usize,
 }
 
+/// A loop found by appearance and verified, but refused: it would have moved its keyframe by
+/// more than the drift the path between the two places allows (a place that looks like
+/// another; `slam::loop_closure::LoopDrift`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RefusedLoop {
+    /// The frames of the new and the old keyframe.
+    pub frames: (usize, usize),
+    /// The correction it needed, the path it was measured against and what that allows.
+    pub drift: LoopDrift,
+    /// The largest correction allowed for that path and scene (map units).
+    pub allowed: f64,
+}
+
 /// Everything a run produced; `N` is the dimension of a measurement (3: stereo and RGB-D, 2:
 /// monocular).
 #[derive(Clone, Debug)]
@@ -142,6 +155,9 @@ pub struct RunResult<const N: usize = 3> {
     pub loops: Vec<LoopEvent>,
     /// The lost frames found again by appearance (stereo and RGB-D).
     pub relocalisations: Vec<Relocalisation>,
+    /// Appearance loops refused by the drift test (stereo and RGB-D; the monocular system
+    /// counts its own in a warning).
+    pub refused_loops: Vec<RefusedLoop>,
     /// The optimisations (time and window sizes of each).
     pub optimisations: Vec<DwoStats>,
     /// The final graph.
@@ -860,24 +876,24 @@ impl LiveSystem {
                 )
             }
         };
-        let mut refused = Vec::new();
+        let mut refused_loops = Vec::new();
         if let Some(closer) = &closer {
             self.record.timings.extend(&closer.timings);
             let store = self.store.read().unwrap_or_else(|e| e.into_inner());
             let frame_of = |k: KeyframeId| store.get(k).map_or(usize::MAX, |i| i.frame_index);
-            for (k, old, d) in &closer.refused {
-                refused.push(format!(
-                    "a loop by appearance from frame {} to frame {} was refused: it moves the \
-                     keyframe by {:.2} m, more than the drift allowed over the {:.1} m path \
-                     ({:.2} m; a place that looks like another)",
-                    frame_of(*k),
-                    frame_of(*old),
-                    d.displacement,
-                    d.path,
-                    d.allowed(&self.mapper.config().appearance_max_drift),
-                ));
-            }
+            refused_loops = closer
+                .refused
+                .iter()
+                .map(|(k, old, d)| RefusedLoop {
+                    frames: (frame_of(*k), frame_of(*old)),
+                    drift: *d,
+                    allowed: d.allowed(&self.mapper.config().appearance_max_drift),
+                })
+                .collect();
         }
+        // One line for all of them (a corridor of repeated textures refuses dozens); the list
+        // is in the run's summary.
+        let refused = refused_loop_warning(&refused_loops);
         let appearance = std::mem::take(
             &mut *self
                 .appearance_loops
@@ -977,6 +993,7 @@ impl LiveSystem {
             frames: self.reports,
             loops: self.loops,
             relocalisations: self.relocalisations,
+            refused_loops,
             optimisations,
             graph,
             keyframes: store,
@@ -1003,6 +1020,32 @@ impl LiveSystem {
 
 /// The optimisation thread: woken by each new keyframe, it optimises the shared graph; a result
 /// superseded by a change to the window's poses meanwhile is re-planned at once.
+/// The warning that sums up the refused appearance loops: how many, the range of corrections
+/// they needed and the largest one next to what its path allowed; `None` if there were none.
+fn refused_loop_warning(refused: &[RefusedLoop]) -> Option<String> {
+    let worst = refused
+        .iter()
+        .max_by(|a, b| a.drift.displacement.total_cmp(&b.drift.displacement))?;
+    let least = refused
+        .iter()
+        .map(|r| r.drift.displacement)
+        .fold(f64::INFINITY, f64::min);
+    Some(format!(
+        "{} loop{} by appearance {} refused, each needing more correction than the drift \
+         the path between the two places allows (a place that looks like another): \
+         {least:.2}–{:.2} m, the largest from frame {} to frame {} against {:.2} m allowed over \
+         {:.1} m of path (all in summary.json, refused_loops)",
+        refused.len(),
+        if refused.len() == 1 { "" } else { "s" },
+        if refused.len() == 1 { "was" } else { "were" },
+        worst.drift.displacement,
+        worst.frames.0,
+        worst.frames.1,
+        worst.allowed,
+        worst.drift.path,
+    ))
+}
+
 fn spawn_worker(
     mut optimiser: DoubleWindowOptimiser,
     graph: Arc<SharedGraph<3>>,
@@ -1036,4 +1079,44 @@ fn spawn_worker(
         })
         .expect("a thread can be spawned");
     Worker { wake, handle }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refused(frames: (usize, usize), displacement: f64, path: f64) -> RefusedLoop {
+        RefusedLoop {
+            frames,
+            drift: LoopDrift {
+                displacement,
+                path,
+                scene_depth: 3.0,
+            },
+            allowed: (0.05 * path).max(0.3),
+        }
+    }
+
+    #[test]
+    fn refused_loops_are_summed_up_in_one_warning() {
+        assert_eq!(refused_loop_warning(&[]), None);
+        let one = refused_loop_warning(&[refused((90, 10), 2.5, 20.0)]).unwrap();
+        assert!(one.starts_with("1 loop by appearance was refused"), "{one}");
+        let many = refused_loop_warning(&[
+            refused((90, 10), 2.5, 20.0),
+            refused((400, 120), 12.25, 60.0),
+            refused((410, 300), 0.75, 8.0),
+        ])
+        .unwrap();
+        assert!(
+            many.starts_with("3 loops by appearance were refused"),
+            "{many}"
+        );
+        // The range of the corrections, and the largest with its frames, allowance and path.
+        assert!(many.contains("0.75–12.25 m"), "{many}");
+        assert!(
+            many.contains("from frame 400 to frame 120 against 3.00 m allowed over 60.0 m"),
+            "{many}"
+        );
+    }
 }
