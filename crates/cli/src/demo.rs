@@ -141,8 +141,14 @@ fn print_summary(outcome: &Outcome, args: &DemoArgs) {
     let fps = outcome.frames as f64 / outcome.seconds.max(1e-9);
     println!();
     println!(
-        "demo: {} frames ({} lost) in {:.1} s, {:.0} frames per second with rendering; {} keyframes, {} loop closures",
-        outcome.frames, outcome.lost, outcome.seconds, fps, outcome.keyframes, outcome.loops
+        "demo: {} frames ({} lost) in {:.1} s, {:.0} frames per second with rendering; {} keyframes, {} loop closure{}",
+        outcome.frames,
+        outcome.lost,
+        outcome.seconds,
+        fps,
+        outcome.keyframes,
+        outcome.loops,
+        if outcome.loops == 1 { "" } else { "s" }
     );
     if let Some((live, last)) = outcome.ate {
         println!(

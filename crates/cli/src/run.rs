@@ -426,7 +426,11 @@ fn drive<S: LiveRun<N>, const N: usize>(
             output.log_frame(f)?;
         }
         bar.inc(1);
-        bar.set_message(format!("{keyframes} keyframes, {weak} weak, {lost} lost"));
+        let progress = system.progress();
+        bar.set_message(format!(
+            "{keyframes} keyframes, {} points, {} loops, {weak} weak, {lost} lost",
+            progress.points, progress.loops
+        ));
         waited = Instant::now();
     }
     let interrupted = stop.load(Ordering::SeqCst) || failure.is_some();
@@ -438,11 +442,12 @@ fn drive<S: LiveRun<N>, const N: usize>(
         println!("warning: {w}");
     }
     println!(
-        "{processed} frames in {seconds:.1} s ({:.1} frames per second), {} keyframes, {} points, {} loop closures{}{}",
+        "{processed} frames in {seconds:.1} s ({:.1} frames per second), {} keyframes, {} points, {} loop closure{}{}{}",
         processed as f64 / seconds.max(1e-9),
         result.record.keyframes.len(),
         result.record.points.len(),
         result.loops.len(),
+        if result.loops.len() == 1 { "" } else { "s" },
         match result.relocalisations.len() {
             0 => String::new(),
             1 => ", 1 relocalisation".into(),

@@ -188,6 +188,17 @@ pub trait LiveRun<const N: usize> {
     /// Ends the run (`interrupted`: stopped before the end of the sequence) and collects the
     /// outputs.
     fn finish(self, interrupted: bool) -> Result<RunResult<N>, SystemError>;
+    /// The map's size and the loops closed so far, for the progress bar.
+    fn progress(&self) -> Progress;
+}
+
+/// What the progress bar shows of the map while a run goes on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Progress {
+    /// Points in the map.
+    pub points: usize,
+    /// Loop closures so far (metric and by appearance).
+    pub loops: usize,
 }
 
 impl LiveRun<3> for LiveSystem {
@@ -205,6 +216,19 @@ impl LiveRun<3> for LiveSystem {
     }
     fn finish(self, interrupted: bool) -> Result<RunResult<3>, SystemError> {
         LiveSystem::finish(self, interrupted)
+    }
+    fn progress(&self) -> Progress {
+        Progress {
+            points: self.graph.read().num_points(),
+            // Metric loops, and the appearance loops (closed inline or by the loop-closure
+            // thread), which join the list at the end of the run.
+            loops: self.loops.len()
+                + self
+                    .appearance_loops
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .len(),
+        }
     }
 }
 

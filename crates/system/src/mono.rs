@@ -1114,6 +1114,16 @@ impl LiveRun<2> for MonoSystem {
         &self.record
     }
 
+    fn progress(&self) -> crate::live::Progress {
+        crate::live::Progress {
+            points: self
+                .explorer
+                .as_ref()
+                .map_or(0, |e| e.map().graph.num_points()),
+            loops: self.events.len(),
+        }
+    }
+
     fn record_timing(&mut self, stage: &str, d: Duration) {
         self.record.timings.record(stage, d);
     }

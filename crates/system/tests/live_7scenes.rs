@@ -9,7 +9,7 @@ use data::sequence::{BadFramePolicy, Frame, FrameImages, OpenOptions, Sequence};
 use lie::LieGroup;
 use std::path::{Path, PathBuf};
 use system::config::SystemConfig;
-use system::live::{LiveSystem, Mode, RunResult};
+use system::live::{LiveRun, LiveSystem, Mode, RunResult};
 use system::place_recognition::vocabulary::default_vocabulary;
 
 fn seven_scenes() -> Option<PathBuf> {
@@ -28,7 +28,14 @@ fn run(path: &Path, frames: Vec<Frame>, mode: Mode) -> RunResult {
     for f in frames {
         system.process(f).unwrap();
     }
-    system.finish(false).unwrap()
+    // The progress bar's figures: the map's points, and the loops the run reports.
+    let progress = system.progress();
+    let result = system.finish(false).unwrap();
+    assert!(progress.points > 0);
+    if mode == Mode::Deterministic {
+        assert_eq!(progress.loops, result.loops.len());
+    }
+    result
 }
 
 fn read(path: &Path, options: &OpenOptions, indices: impl Iterator<Item = usize>) -> Vec<Frame> {
