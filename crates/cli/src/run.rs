@@ -759,8 +759,6 @@ fn top_axes(points: impl Iterator<Item = nalgebra::Vector3<f64>>) -> (usize, usi
     }
 }
 
-/// The report: trajectory against ground truth (top view), the keyframe graph with its loop
-/// edges, time per frame and per keyframe, tracked points per frame.
 /// The points of `(timestamp, point)` samples in time order, with a break (a `NaN` point,
 /// which [`plot::plot`] does not join across) where two samples are more than `gap` seconds
 /// apart.
@@ -780,6 +778,8 @@ fn broken_at_gaps(
     out
 }
 
+/// The report: trajectory against ground truth (top view), the keyframe graph with its loop
+/// edges, time per frame and per keyframe, tracked points per frame.
 fn report<const N: usize>(
     out: &Path,
     result: &RunResult<N>,

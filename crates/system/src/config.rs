@@ -429,8 +429,8 @@ pub struct OptimiserConfig {
     /// Levenberg-Marquardt iterations per optimisation (thesis §6.5.1: 3).
     pub iterations: usize,
     /// Levenberg-Marquardt iterations of the bundle adjustment over every keyframe and point
-    /// when a stereo or RGB-D run ends (the trajectory after the run is every frame relative to its keyframe
-    /// after it); 0: none, the last double window is the final state. The windows leave the
+    /// when a stereo or RGB-D run ends (the trajectory after the run is every frame relative
+    /// to its keyframe after it); 0: none, the last double window is the final state. The windows leave the
     /// map locally exact but, where a lap's metric loops pull old keyframes into the inner
     /// window, they move those towards the newer (drifted) view instead of spreading the
     /// correction (rendered courtyard seed 3: first-lap keyframes 1.5–2.5 cm off against 0.5

@@ -1042,8 +1042,6 @@ impl LiveSystem {
     }
 }
 
-/// The optimisation thread: woken by each new keyframe, it optimises the shared graph; a result
-/// superseded by a change to the window's poses meanwhile is re-planned at once.
 /// The warning that sums up the refused appearance loops: how many, the range of corrections
 /// they needed and the largest one next to what its path allowed; `None` if there were none.
 fn refused_loop_warning(refused: &[RefusedLoop]) -> Option<String> {
@@ -1070,6 +1068,8 @@ fn refused_loop_warning(refused: &[RefusedLoop]) -> Option<String> {
     ))
 }
 
+/// The optimisation thread: woken by each new keyframe, it optimises the shared graph; a result
+/// superseded by a change to the window's poses meanwhile is re-planned at once.
 fn spawn_worker(
     mut optimiser: DoubleWindowOptimiser,
     graph: Arc<SharedGraph<3>>,

@@ -98,6 +98,19 @@ pub struct Motion {
     recovering: bool,
 }
 
+impl Motion {
+    /// The motion model at rest from `last` (nothing yet: `None`): no velocity, no dense
+    /// reference, not recovering.
+    fn starting(last: Option<(usize, Se3)>) -> Self {
+        Motion {
+            last,
+            velocity: Se3::identity(),
+            dense_reference: None,
+            recovering: false,
+        }
+    }
+}
+
 impl Tracker {
     /// A tracker for `camera` (the sensor's stereo or virtual stereo camera) with measurement
     /// noise `sigma` pixels.
@@ -106,12 +119,7 @@ impl Tracker {
             config,
             sigma,
             camera,
-            motion: Motion {
-                last: None,
-                velocity: Se3::identity(),
-                dense_reference: None,
-                recovering: false,
-            },
+            motion: Motion::starting(None),
             scratch: SearchScratch::default(),
         }
     }
@@ -142,12 +150,7 @@ impl Tracker {
     /// no velocity and no dense reference, so [`Tracker::track`] of that frame searches around
     /// this pose with the wide radius of a constant-velocity prior.
     pub fn restart(&mut self, index: usize, camera_from_world: Se3) {
-        self.motion = Motion {
-            last: Some((index, camera_from_world)),
-            velocity: Se3::identity(),
-            dense_reference: None,
-            recovering: false,
-        };
+        self.motion = Motion::starting(Some((index, camera_from_world)));
     }
 
     /// Forgets the velocity (after a relocalisation the motion between frames is unknown: the
