@@ -16,12 +16,14 @@ use geom::{PinholeCamera, StereoCamera};
 use lie::Se3;
 use nalgebra::{Matrix3, Vector2, Vector3};
 use vision::image::{GrayImage, Image};
-use vision::undistort::{UndistortMap, rectify_stereo};
+use vision::undistort::{RemapTable, UndistortMap, rectify_stereo};
 
 /// A remap table from an ideal (undistorted, possibly rotated) image to a raw camera's image.
 #[derive(Debug, Clone)]
 pub struct Remap {
     map: UndistortMap,
+    /// The map compiled for the raw size (`None` for images under 2×2 pixels).
+    table: Option<RemapTable>,
 }
 
 impl Remap {
@@ -37,7 +39,8 @@ impl Remap {
             RawCamera::RadTan(c) => UndistortMap::new(&c, dst, w, h, raw_from_dst),
             RawCamera::Equidistant(c) => UndistortMap::new(&c, dst, w, h, raw_from_dst),
         };
-        Remap { map }
+        let table = RemapTable::new(&map, w, h);
+        Remap { map, table }
     }
 
     /// The raw image pixel sampled by output pixel `(u, v)` (NaN where none).
@@ -45,13 +48,31 @@ impl Remap {
         (self.map.map_u.get(u, v), self.map.map_v.get(u, v))
     }
 
+    /// The compiled table, if `raw` has the size it was compiled for.
+    fn table_for<T: Copy + Default>(&self, raw: &Image<T>) -> Option<&RemapTable> {
+        self.table
+            .as_ref()
+            .filter(|t| t.source_size() == (raw.width(), raw.height()))
+    }
+
     /// Remaps an intensity image (bilinear; outside the raw image 0).
     pub fn gray(&self, raw: &GrayImage) -> GrayImage {
-        self.map.remap(raw)
+        match self.table_for(raw) {
+            Some(t) => t.remap(raw),
+            None => self.map.remap(raw),
+        }
     }
 
     /// Remaps a depth image at the nearest raw pixel (outside the raw image 0 = invalid).
     pub fn depth(&self, raw: &Image<u16>) -> Image<u16> {
+        match self.table_for(raw) {
+            Some(t) => t.remap_nearest(raw, 0),
+            None => self.depth_through_map(raw),
+        }
+    }
+
+    /// [`Remap::depth`] through the map, pixel by pixel (images the table was not compiled for).
+    fn depth_through_map(&self, raw: &Image<u16>) -> Image<u16> {
         let (w, h) = (self.map.map_u.width(), self.map.map_u.height());
         Image::from_fn(w, h, |u, v| {
             let (x, y) = self.source(u, v);
@@ -139,5 +160,43 @@ impl StereoRectifier {
             left: left_map,
             right: right_map,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::LensDistortion;
+
+    /// The compiled table samples the same raw pixels as the map, bit for bit, for intensities
+    /// (bilinear) and depths (nearest), on a strongly distorted, rotated camera whose view
+    /// leaves the raw image at the corners.
+    #[test]
+    fn the_compiled_table_remaps_as_the_map() {
+        let (w, h) = (97, 61);
+        let raw = CameraIntrinsics {
+            width: w,
+            height: h,
+            pinhole: PinholeCamera::new(60.0, 62.0, 47.3, 29.8),
+            distortion: LensDistortion::RadTan(geom::RadTan::new(-0.3, 0.09, 0.001, -0.0005)),
+        };
+        let rot = nalgebra::Rotation3::from_euler_angles(0.02, -0.03, 0.01).into_inner();
+        let remap = Remap::new(
+            &raw,
+            &PinholeCamera::new(55.0, 55.0, 48.0, 30.0),
+            Some(&rot),
+        );
+        let gray = GrayImage::from_fn(w, h, |u, v| ((u * 37 + v * 91 + u * v) % 251) as u8);
+        let depth = Image::<u16>::from_fn(w, h, |u, v| (1000 + u * 13 + v * 7) as u16);
+        assert!(remap.table.is_some());
+        let (a, b) = (remap.gray(&gray), remap.map.remap(&gray));
+        assert_eq!(a.data(), b.data());
+        let (a, b) = (remap.depth(&depth), remap.depth_through_map(&depth));
+        assert_eq!(a.data(), b.data());
+        // Both kinds of pixel occur: inside and outside the raw image.
+        assert!(b.data().contains(&0) && b.data().iter().any(|&d| d > 0));
+        // An image of another size goes through the map.
+        let small = GrayImage::from_fn(w - 1, h, |u, _| u as u8);
+        assert_eq!(remap.gray(&small).data(), remap.map.remap(&small).data());
     }
 }
