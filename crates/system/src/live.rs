@@ -653,7 +653,7 @@ impl LiveSystem {
         let mut tracked = None;
         let mut prior = pose;
         for _ in 0..2 {
-            self.tracker.restart(frame.index, prior);
+            self.tracker.restart(frame, prior);
             tracked = self.tracker.track(&self.graph, &store, frame);
             match &tracked {
                 Some(t) if matches!(t.state, TrackingState::Weak(_)) => {
