@@ -480,3 +480,31 @@ impl Tracker {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stamp(index: usize, time: f64) -> Stamp {
+        Stamp { index, time }
+    }
+
+    /// The prediction runs on time: a step of 0.1 s at 12 m/s, then a gap of 1.1 s predicts
+    /// 13.2 m ahead; where the timestamps stop increasing, each frame counts the last period.
+    #[test]
+    fn the_motion_model_bridges_time() {
+        let at = |z: f64| Se3::from_translation(Vector3::new(0.0, 0.0, -z));
+        let mut m = Motion::starting(Some((stamp(0, 0.0), at(0.0))));
+        m.advance(stamp(1, 0.1), at(1.2));
+        let z = |p: Se3| -p.translation().z;
+        assert!((z(m.predict(stamp(2, 0.2)).unwrap()) - 2.4).abs() < 1e-9);
+        assert!((z(m.predict(stamp(2, 1.2)).unwrap()) - 14.4).abs() < 1e-9);
+        // A broken clock: frame 3 stamped as frame 1, two frames of 0.1 s later.
+        assert!((z(m.predict(stamp(3, 0.1)).unwrap()) - 3.6).abs() < 1e-9);
+        // Frames with the same timestamp: the period observed, frame by frame.
+        let mut m = Motion::starting(Some((stamp(0, 5.0), at(0.0))));
+        m.advance(stamp(1, 5.0), at(0.5));
+        assert!((m.period - Motion::DEFAULT_PERIOD).abs() < 1e-15);
+        assert!((z(m.predict(stamp(2, 5.0)).unwrap()) - 1.0).abs() < 1e-9);
+    }
+}
