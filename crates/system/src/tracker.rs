@@ -92,8 +92,9 @@ pub struct Motion {
     last: Option<(Stamp, Se3)>,
     /// Motion per second, `log(T_k·T_{k−1}⁻¹)/Δt` ([`Motion::elapsed`]).
     velocity: Vector6<f64>,
-    /// Seconds per frame of the sequence, from the last step whose timestamps increased; the
-    /// time of a step whose timestamps do not.
+    /// Seconds per frame of the sequence, from the last step whose timestamps increased (by
+    /// at least [`Motion::MIN_STEP`]; a gap the reader numbered on counts as one long frame);
+    /// the time of a step whose timestamps do not.
     period: f64,
     dense_reference: Option<DenseReference>,
     /// The last frame was lost: the next must fit the map well (a good frame) to count as
@@ -122,8 +123,13 @@ impl Stamp {
 
 impl Motion {
     /// Seconds per frame before a step with increasing timestamps has been seen (a 30 Hz
-    /// camera; used only where timestamps never increase).
+    /// camera): the time of a step whose timestamps do not increase, until one does.
     const DEFAULT_PERIOD: f64 = 1.0 / 30.0;
+
+    /// The shortest time between two frames taken as a clock reading (seconds): no camera
+    /// here runs above 1 kHz; a shorter step is a duplicated or broken timestamp, and dividing
+    /// a frame's motion by it would predict the next frame thousands of times too far.
+    const MIN_STEP: f64 = 1e-3;
 
     /// The motion model at rest from `last` (nothing yet: `None`): no velocity, no dense
     /// reference, not recovering.
@@ -137,8 +143,8 @@ impl Motion {
         }
     }
 
-    /// Seconds from `from` to `to`: their timestamps' difference, or where that is not
-    /// positive (a broken clock) the frames between them at the last period seen.
+    /// Seconds from `from` to `to`: their timestamps' difference, or where that is below
+    /// [`Motion::MIN_STEP`] (a broken clock) the frames between them at the last period seen.
     ///
     /// Time rather than frame count: a recording that dropped frames (a driver that fell
     /// behind, a gap cut out of a sequence) keeps its timestamps, and the camera moved for
@@ -148,7 +154,7 @@ impl Motion {
     /// of the run).
     fn elapsed(&self, from: Stamp, to: Stamp) -> f64 {
         let dt = to.time - from.time;
-        if dt.is_finite() && dt > 0.0 {
+        if dt.is_finite() && dt >= Self::MIN_STEP {
             dt
         } else {
             to.index.saturating_sub(from.index).max(1) as f64 * self.period
@@ -167,7 +173,7 @@ impl Motion {
             let dt = self.elapsed(from, to);
             self.velocity = pose.compose(&last.inverse()).log() / dt;
             let frames = to.index.saturating_sub(from.index);
-            if to.time > from.time && frames > 0 {
+            if to.time - from.time >= Self::MIN_STEP && frames > 0 {
                 self.period = (to.time - from.time) / frames as f64;
             }
         }
@@ -214,7 +220,9 @@ impl Tracker {
     /// velocity and no dense reference, so [`Tracker::track`] of that frame searches around
     /// this pose with the wide radius of a constant-velocity prior.
     pub fn restart(&mut self, frame: &FrameData, camera_from_world: Se3) {
+        let period = self.motion.period;
         self.motion = Motion::starting(Some((Stamp::of(frame), camera_from_world)));
+        self.motion.period = period;
     }
 
     /// Forgets the velocity (after a relocalisation the motion between frames is unknown: the
@@ -501,9 +509,10 @@ mod tests {
         assert!((z(m.predict(stamp(2, 1.2)).unwrap()) - 14.4).abs() < 1e-9);
         // A broken clock: frame 3 stamped as frame 1, two frames of 0.1 s later.
         assert!((z(m.predict(stamp(3, 0.1)).unwrap()) - 3.6).abs() < 1e-9);
-        // Frames with the same timestamp: the period observed, frame by frame.
+        // Frames with the same timestamp (or a microsecond apart): the period observed, frame
+        // by frame, not a division by (almost) zero.
         let mut m = Motion::starting(Some((stamp(0, 5.0), at(0.0))));
-        m.advance(stamp(1, 5.0), at(0.5));
+        m.advance(stamp(1, 5.000001), at(0.5));
         assert!((m.period - Motion::DEFAULT_PERIOD).abs() < 1e-15);
         assert!((z(m.predict(stamp(2, 5.0)).unwrap()) - 1.0).abs() < 1e-9);
     }

@@ -92,11 +92,13 @@ pub struct RemapTable {
 impl RemapTable {
     const OUTSIDE: u32 = u32::MAX;
 
-    /// The table of `map` for sources of `src_width×src_height`; `None` for sources narrower or
-    /// lower than 2 pixels or of more than `u32::MAX − 4` pixels (use [`UndistortMap::remap`]).
+    /// The table of `map` for sources of `src_width×src_height`; `None` (use
+    /// [`UndistortMap::remap`]) for sources narrower or lower than 2 pixels, so small that the
+    /// gathers at pixel 0 would leave them (`src_width + 4` pixels or fewer), or of `2³¹ − 4`
+    /// pixels or more (the gathers' offsets are signed 32-bit).
     pub fn new(map: &UndistortMap, src_width: usize, src_height: usize) -> Option<Self> {
         let len = src_width * src_height;
-        if src_width < 2 || src_height < 2 || len + 4 >= Self::OUTSIDE as usize {
+        if src_width < 2 || src_height < 2 || len < src_width + 4 || len + 4 > i32::MAX as usize {
             return None;
         }
         let (width, height) = (map.map_u.width(), map.map_u.height());
@@ -380,10 +382,10 @@ mod tests {
             h,
             Some(&rot),
         );
-        // Three pixels sample the source's last 2×2 (the last one exactly its corner).
-        for (u, x) in [(0usize, 95.5f32), (1, 95.0), (2, 96.0)] {
+        // Three pixels sample the source's last 2×2 (the last one exactly its corner pixel).
+        for (u, x, y) in [(0usize, 95.5f32, 59.5f32), (1, 95.0, 59.5), (2, 96.0, 60.0)] {
             map.map_u.set(u, 0, x);
-            map.map_v.set(u, 0, 59.5);
+            map.map_v.set(u, 0, y);
         }
         let src = GrayImage::from_fn(w, h, |u, v| ((u * 37 + v * 91 + u * v) % 251) as u8);
         let table = RemapTable::new(&map, w, h).unwrap();
@@ -395,7 +397,19 @@ mod tests {
         assert_eq!(scalar.data(), expected.data());
         assert_ne!(expected.get(0, 0), 0);
         assert!(expected.data().contains(&0), "some pixels sample nothing");
+        // A source with padded rows is read row by row.
+        let padded = Image::from_vec(w, h, w + 3, {
+            let mut d = vec![0u8; (w + 3) * h];
+            for v in 0..h {
+                d[v * (w + 3)..][..w].copy_from_slice(src.row(v));
+            }
+            d
+        })
+        .unwrap();
+        assert_eq!(table.remap(&padded).data(), expected.data());
+        // Sources too small for the gathers go through the map.
         assert!(RemapTable::new(&map, 1, 5).is_none());
+        assert!(RemapTable::new(&map, 3, 2).is_none());
     }
 
     #[test]
