@@ -13,13 +13,17 @@ courtyard) under OUT/sequences:
 - 7-Scenes, frames 301-399 cut: a jump to the far side of the table, which the map has not seen;
   it comes back into view around frame 480;
 - the rendered courtyard (stereo, `dwslam render courtyard --sensor stereo --layout kitti`),
-  frames 1500-2199 cut: half a lap skipped.
+  frames 1500-2199 cut: half a lap skipped;
+- the courtyard, frames 300-699 cut: a 21 m jump in the first lap, to the part of the courtyard
+  the map has not seen; the camera comes back to the mapped part about 20 s later.
 
 7-Scenes runs on its frames with depth (dwslam `--depth-frames-only`, ORB-SLAM3 RGB-D on
 associations.txt). dwslam runs deterministic, ORB-SLAM3 `--orb-runs` times (it is not
 deterministic), each pinned to one core. ATE by evo_ape -a (SE(3)) over the frames each system
-gave a pose, live and after the run, beside the fraction of frames tracked. Prints a markdown
-table (also OUT/table.md).
+gave a pose, live and after the run, beside the fraction of frames tracked (dwslam: good or weak,
+including frames tracked in a new map not joined to the first yet, which have no pose in the
+world) and dwslam's frames with a pose in each trajectory. Prints a markdown table (also
+OUT/table.md).
 """
 import argparse
 import json
@@ -95,6 +99,10 @@ def ate(gt, est):
     return float(m.group(1)) if m else None
 
 
+def count_poses(path):
+    return sum(1 for l in open(path) if l.strip() and not l.startswith("#"))
+
+
 def dwslam(name, seq, extra):
     out = os.path.join(a.out, "dwslam-" + name)
     cmd = ["taskset", "-c", str(a.cpu), a.dwslam, "run", seq, *extra, "--deterministic", "--quiet", "--out", out]
@@ -107,7 +115,9 @@ def dwslam(name, seq, extra):
         "ate_live": ate(gt, os.path.join(out, "trajectory.tum")),
         "ate_final": ate(gt, os.path.join(out, "trajectory_final.tum")),
         "tracked": (s["tracking"]["good"] + s["tracking"]["weak"]) / s["frames"],
+        "with_pose": [count_poses(os.path.join(out, f)) / s["frames"] for f in ("trajectory.tum", "trajectory_final.tum")],
         "relocalisations": [(r["frame"], r["keyframe_frame"]) for r in s.get("relocalisations", [])],
+        "new_maps": [(m["frame"], m["joined"]) for m in s.get("new_maps", [])],
     }
 
 
@@ -140,11 +150,14 @@ if a.rendered:
     seq = kitti_cut("courtyard-stereo-cut", courtyard, 1500, 2199)
     cases.append(("rendered courtyard stereo, frames 1500-2199 cut", "courtyard-cut", seq, ["--sensor", "stereo"],
                   "kitti-dir-stereo", ["--dir", seq]))
+    seq = kitti_cut("courtyard-stereo-cut-first-lap", courtyard, 300, 699)
+    cases.append(("rendered courtyard stereo, frames 300-699 cut (a jump off the map in the first lap)",
+                  "courtyard-cut-first-lap", seq, ["--sensor", "stereo"], "kitti-dir-stereo", ["--dir", seq]))
 
 cm = lambda x: "—" if x is None else f"{100 * x:.2f} cm"
 rng = lambda xs: "—" if not xs else (cm(min(xs)) if min(xs) == max(xs) else f"{100 * min(xs):.2f}–{cm(max(xs))}")
-table = ["| sequence | system | ATE live | ATE after the run | tracked | relocalised (frame ← keyframe's frame, positions in the cut sequence) |",
-         "|---|---|---|---|---|---|"]
+table = ["| sequence | system | ATE live | ATE after the run | tracked | with a pose, live / after the run | relocalised (frame ← keyframe's frame, positions in the cut sequence) | new maps (frame: joined to the first?) |",
+         "|---|---|---|---|---|---|---|---|"]
 print("\n".join(table), flush=True)
 results = {}
 for title, name, seq, extra, peer_seq, peer_extra in cases:
@@ -153,10 +166,12 @@ for title, name, seq, extra, peer_seq, peer_extra in cases:
     results[name] = {"dwslam": d, "orbslam3": o}
     ok = [r for r in o if "error" not in r]
     rows = [f"| {title} | dwslam (deterministic) | {cm(d['ate_live'])} | {cm(d['ate_final'])} | "
-            f"{100 * d['tracked']:.1f} % | {', '.join(f'{f} ← {k}' for f, k in d['relocalisations']) or '—'} |",
+            f"{100 * d['tracked']:.1f} % | {100 * d['with_pose'][0]:.1f} % / {100 * d['with_pose'][1]:.1f} % | "
+            f"{', '.join(f'{f} ← {k}' for f, k in d['relocalisations']) or '—'} | "
+            f"{', '.join(f'{f}: ' + ('yes' if j else 'no') for f, j in d['new_maps']) or '—'} |",
             f"| | ORB-SLAM3 ({len(ok)} runs) | {rng([r['ate_live'] for r in ok if r['ate_live'] is not None])} | "
             f"{rng([r['ate_final'] for r in ok if r['ate_final'] is not None])} | "
-            f"{', '.join('%.1f %%' % (100 * r['tracked']) for r in ok if r['tracked'] is not None)} | |"]
+            f"{', '.join('%.1f %%' % (100 * r['tracked']) for r in ok if r['tracked'] is not None)} | | | |"]
     print("\n".join(rows), flush=True)
     table += rows
 with open(os.path.join(a.out, "table.md"), "w") as f:

@@ -452,6 +452,10 @@ fn drive<S: LiveRun<N>, const N: usize>(
             0 => String::new(),
             1 => ", 1 relocalisation".into(),
             n => format!(", {n} relocalisations"),
+        } + &match result.new_maps.len() {
+            0 => String::new(),
+            1 => ", 1 new map after a loss".into(),
+            n => format!(", {n} new maps after losses"),
         },
         if stop.load(Ordering::SeqCst) {
             " — interrupted"
@@ -506,6 +510,19 @@ fn drive<S: LiveRun<N>, const N: usize>(
                 .map(|r| json!({"frame": r.frame, "keyframe": r.keyframe.index(),
                 "keyframe_frame": r.keyframe_frame, "ransac_inliers": r.ransac_inliers,
                 "tracked": r.tracked}))
+                .collect::<Vec<_>>()
+        ),
+    );
+    record.extra.insert(
+        "new_maps".into(),
+        json!(
+            result
+                .new_maps
+                .iter()
+                .map(
+                    |m| json!({"frame": m.frame, "lost_s": m.lost_for, "map": m.map,
+                "joined": m.joined, "frames": m.frames})
+                )
                 .collect::<Vec<_>>()
         ),
     );

@@ -254,7 +254,9 @@ impl DenseModel {
 
 /// The dense model of a run (thesis §6.5.3): every keyframe of `graph` whose images `store`
 /// holds, its depth sampled ([`KeyframeCloud::from_depth`], in parallel) and placed with its
-/// final pose, in keyframe order (the model does not depend on the thread count).
+/// final pose, in keyframe order (the model does not depend on the thread count). Keyframes of
+/// a map that no loop joined to the first (`slam::map::FIRST_MAP`) are left out: their place in
+/// the world is a guess.
 pub fn fuse(
     graph: &slam::map::SlamGraph<3>,
     store: &crate::keyframes::KeyframeStore,
@@ -265,6 +267,7 @@ pub fn fuse(
     let mut model = DenseModel::new(config.clone())?;
     let keyframes: Vec<_> = graph
         .keyframes()
+        .filter(|&(k, _)| graph.map_of(k) == Ok(slam::map::FIRST_MAP))
         .filter_map(|(k, kf)| {
             let images = store.get(k)?;
             images.depth.as_ref()?;

@@ -99,6 +99,9 @@ impl KeyframeStore {
 pub enum KeyframeReason {
     /// The first frame.
     First,
+    /// The first frame of a new map, started after the camera was lost
+    /// (`tracker.new_map_after`).
+    NewMap,
     /// The camera moved `distance / depth` of the scene depth away from every keyframe of
     /// `N1`.
     Parallax(f64),
@@ -116,6 +119,7 @@ impl KeyframeReason {
     pub fn name(&self) -> &'static str {
         match self {
             KeyframeReason::First => "first",
+            KeyframeReason::NewMap => "new map",
             KeyframeReason::Parallax(_) => "parallax",
             KeyframeReason::Rotation(_) => "rotation",
             KeyframeReason::FewFound(_) => "few found",

@@ -31,7 +31,7 @@ use geom::StereoCamera;
 use lie::{LieGroup, Se3, Sim3};
 use slam::dwo::{DoubleWindowOptimiser, DwoError, DwoParams, DwoStats};
 use slam::loop_closure::LoopDrift;
-use slam::map::{KeyframeId, SharedGraph, SlamGraph};
+use slam::map::{FIRST_MAP, KeyframeId, SharedGraph, SlamGraph};
 use slam::mapping::{KeyframeReport, Mapper, MappingError};
 use slam::tracking::TrackId;
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
@@ -100,7 +100,8 @@ pub struct LoopEvent {
     pub old: KeyframeId,
     /// The frames the two keyframes were made from.
     pub frames: (usize, usize),
-    /// `"metric"` or `"appearance"`.
+    /// `"metric"`, `"appearance"`, or `"merge"` (an appearance loop that joined a map started
+    /// after a loss to the older one, moving the newer map onto it).
     pub kind: &'static str,
     /// The scale of the loop's similarity (monocular: the scale drift between the two
     /// places, thesis ch. 5; `None` for a rigid loop).
@@ -124,6 +125,23 @@ pub struct Relocalisation {
     pub ransac_inliers: usize,
     /// Map points tracked after it (motion-only BA inliers).
     pub tracked: usize,
+}
+
+/// A map started after the camera was lost for `tracker.new_map_after` seconds
+/// ([`LiveSystem::start_map`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NewMap {
+    /// The frame it started at (its index in the sequence).
+    pub frame: usize,
+    /// Seconds the camera had been lost.
+    pub lost_for: f64,
+    /// Its number (`slam::map::SlamGraph::start_map`).
+    pub map: usize,
+    /// A loop (kind `"merge"`) joined it to the first map, directly or through other maps:
+    /// its frames are in the final trajectory.
+    pub joined: bool,
+    /// Frames tracked in it before it joined the first map (these have no live pose).
+    pub frames: usize,
 }
 
 /// A loop found by appearance and verified, but refused: it would have moved its keyframe by
@@ -155,6 +173,8 @@ pub struct RunResult<const N: usize = 3> {
     pub loops: Vec<LoopEvent>,
     /// The lost frames found again by appearance (stereo and RGB-D).
     pub relocalisations: Vec<Relocalisation>,
+    /// The maps started after a loss (stereo and RGB-D).
+    pub new_maps: Vec<NewMap>,
     /// Appearance loops refused by the drift test (stereo and RGB-D; the monocular system
     /// counts its own in a warning).
     pub refused_loops: Vec<RefusedLoop>,
@@ -298,6 +318,12 @@ pub struct LiveSystem {
     /// frame is looked for.
     relocaliser: Option<(Arc<RwLock<PlaceRecognition>>, PlaceRecognitionConfig)>,
     relocalisations: Vec<Relocalisation>,
+    /// The timestamp of the first of the lost frames up to now (`None` while tracked).
+    lost_since: Option<f64>,
+    /// The maps started after a loss: `(frame, seconds lost before it, map)`.
+    new_maps: Vec<(usize, f64, usize)>,
+    /// Per map other than the first: the frames tracked in it (before it joined the first).
+    frames_in_map: std::collections::BTreeMap<usize, usize>,
     next_track: TrackId,
     record: RunRecord,
     /// Per frame with a pose: `(frame position in record.frames, reference, T·T_ref⁻¹)`.
@@ -374,6 +400,9 @@ impl LiveSystem {
             loop_queue_full: 0,
             relocaliser: None,
             relocalisations: Vec::new(),
+            lost_since: None,
+            new_maps: Vec::new(),
+            frames_in_map: Default::default(),
             next_track: 0,
             record: RunRecord {
                 sequence: sequence.to_string(),
@@ -500,9 +529,9 @@ impl LiveSystem {
         }
         let pose = Sim3::identity();
         let keyframe = self.make_keyframe(frame, pose, Vec::new())?;
-        self.tracker.set_pose(frame, Se3::identity());
+        self.tracker.set_pose(frame, Se3::identity(), 0);
         let state = TrackingState::Good;
-        self.push_frame(frame, Some(pose), state.clone(), Some(keyframe));
+        let state = self.push_frame(frame, Some(pose), state, Some(keyframe));
         Ok(FrameReport {
             index: frame.index,
             state,
@@ -531,6 +560,17 @@ impl LiveSystem {
                 tracked = found;
             }
             self.record.timings.record("track: relocalise", t.elapsed());
+        }
+        if matches!(tracked.state, TrackingState::Lost(_)) {
+            let lost_for = frame.timestamp - *self.lost_since.get_or_insert(frame.timestamp);
+            if lost_for >= self.config.tracker.new_map_after
+                && let Some(report) =
+                    self.start_map(frame, tracked.camera_from_world, lost_for, t)?
+            {
+                return Ok(report);
+            }
+        } else {
+            self.lost_since = None;
         }
         let time_tracking = t.elapsed();
         self.record.timings.record("track: total", time_tracking);
@@ -581,10 +621,20 @@ impl LiveSystem {
             }
             _ => reference,
         };
+        let mut camera_from_world = camera_from_world;
         let keyframe = match reason {
             Some(reason) => {
                 let t = Instant::now();
+                let (map, seen) = {
+                    let g = self.graph.read();
+                    (g.map_of(reference).ok(), g.merges().len())
+                };
                 let k = self.make_keyframe(frame, camera_from_world, matches)?;
+                // A loop closed inline (deterministic) that merged this map into an older one
+                // moved the map: the frame's pose moves with it.
+                if let Some((moved, _)) = map.and_then(|m| self.graph.read().moved_since(seen, m)) {
+                    camera_from_world = camera_from_world.compose(&moved);
+                }
                 self.record
                     .timings
                     .record("keyframe: pipeline", t.elapsed());
@@ -595,10 +645,10 @@ impl LiveSystem {
         // A lost frame has no pose: the prior it was searched around is a guess (after a jump,
         // metres off), not an estimate, and the trajectory holds estimates only.
         let lost = matches!(state, TrackingState::Lost(_));
-        self.push_frame(
+        let state = self.push_frame(
             frame,
             (!lost).then_some(camera_from_world),
-            state.clone(),
+            state,
             keyframe.as_ref().map(|(k, _)| *k).or(Some(reference)),
         );
         Ok(FrameReport {
@@ -609,6 +659,63 @@ impl LiveSystem {
             time: Duration::ZERO,
             time_tracking,
         })
+    }
+
+    /// Starts a new map at `frame`, lost for `lost_for` seconds, at the pose `guess` (the
+    /// tracker's constant-velocity prediction): its first keyframe, in a map of its own
+    /// (`slam::map::SlamGraph::start_map`), from which the next frames are tracked. An
+    /// appearance loop from the new map into an older one later merges the two
+    /// (`AppearanceClosure::Merged`). Not for a frame with too few corners with depth for the
+    /// next frames to track (fewer than a good frame's inliers: a black or blurred frame);
+    /// `None` then.
+    fn start_map(
+        &mut self,
+        frame: &Arc<FrameData>,
+        guess: Sim3,
+        lost_for: f64,
+        started: Instant,
+    ) -> Result<Option<FrameReport>, SystemError> {
+        if frame.depth.is_none() {
+            return Ok(None);
+        }
+        let with_depth = frame
+            .corners
+            .corners()
+            .iter()
+            .filter(|c| frame.depth_at(c.u as f64, c.v as f64).is_some())
+            .count();
+        if with_depth < self.config.tracker.min_good {
+            return Ok(None);
+        }
+        let map = self.graph.write().start_map();
+        let keyframe = self.make_keyframe(frame, guess, Vec::new())?;
+        // Where the keyframe is now: a loop closed inline (deterministic) may have merged the
+        // new map into the old one already.
+        let (pose, now_in) = {
+            let g = self.graph.read();
+            (
+                g.pose(keyframe).unwrap_or(guess),
+                g.map_of(keyframe).unwrap_or(map),
+            )
+        };
+        self.tracker.set_pose(frame, pose.rigid_part(), now_in);
+        self.lost_since = None;
+        self.new_maps.push((frame.index, lost_for, map));
+        let time_tracking = started.elapsed();
+        self.record.timings.record("track: total", time_tracking);
+        // A weak state: the map goes on, but its place relative to the old one is a guess.
+        let state = TrackingState::Weak(format!(
+            "lost for {lost_for:.1} s: new map {map} started at the constant-velocity guess"
+        ));
+        let state = self.push_frame(frame, Some(pose), state, Some(keyframe));
+        Ok(Some(FrameReport {
+            index: frame.index,
+            state,
+            keyframe: Some((keyframe, KeyframeReason::NewMap)),
+            stats: None,
+            time: Duration::ZERO,
+            time_tracking,
+        }))
     }
 
     /// Looks for a lost frame in the map by appearance: the keyframe whose place it shows
@@ -724,8 +831,7 @@ impl LiveSystem {
 
     /// Records a frame without a pose, lost for `reason`, and its report.
     fn lost(&mut self, frame: &FrameData, reason: &str, time_tracking: Duration) -> FrameReport {
-        let state = TrackingState::Lost(reason.into());
-        self.push_frame(frame, None, state.clone(), None);
+        let state = self.push_frame(frame, None, TrackingState::Lost(reason.into()), None);
         FrameReport {
             index: frame.index,
             state,
@@ -737,26 +843,50 @@ impl LiveSystem {
     }
 
     /// Records a frame's pose and state; `reference` is the keyframe its pose is kept relative
-    /// to for the final trajectory.
+    /// to for the final trajectory. Returns the state recorded.
+    ///
+    /// Only a pose in the first map (or a map merged into it) is a pose in the world: a frame
+    /// tracked in a map started after a loss ([`LiveSystem::start_map`]) that no loop has
+    /// joined to the first yet has none (the new map's place in the world is the motion
+    /// model's guess, not an estimate), and its state says so; its pose relative to its
+    /// keyframe is kept, so that the final trajectory has it once the maps are merged.
     fn push_frame(
         &mut self,
         frame: &FrameData,
         camera_from_world: Option<Sim3>,
         state: TrackingState,
         reference: Option<KeyframeId>,
-    ) {
-        if let (Some(pose), Some(r)) = (camera_from_world, reference)
-            && let Ok(t_r) = self.graph.read().pose(r)
-        {
-            self.relative
-                .push((self.record.frames.len(), r, pose.compose(&t_r.inverse())));
+    ) -> TrackingState {
+        let mut state = state;
+        let mut world_pose = camera_from_world;
+        if let (Some(pose), Some(r)) = (camera_from_world, reference) {
+            let g = self.graph.read();
+            if let Ok(t_r) = g.pose(r) {
+                self.relative
+                    .push((self.record.frames.len(), r, pose.compose(&t_r.inverse())));
+            }
+            if let Ok(map) = g.map_of(r)
+                && map != FIRST_MAP
+            {
+                world_pose = None;
+                *self.frames_in_map.entry(map).or_default() += 1;
+                state = TrackingState::Weak(match state {
+                    TrackingState::Weak(reason) => format!(
+                        "{reason}; in map {map}, not joined to the first map yet: no pose in the world"
+                    ),
+                    _ => format!(
+                        "tracked in map {map}, which no loop has joined to the first map yet: no pose in the world"
+                    ),
+                });
+            }
         }
         self.record.frames.push(FrameRecord {
             index: frame.index,
             timestamp: frame.timestamp,
-            world_from_camera: camera_from_world.map(|t| t.rigid_part().inverse()),
-            state,
+            world_from_camera: world_pose.map(|t| t.rigid_part().inverse()),
+            state: state.clone(),
         });
+        state
     }
 
     /// Makes `frame` a keyframe at `camera_from_world` with its tracked `matches`: the
@@ -925,7 +1055,12 @@ impl LiveSystem {
                 .unwrap_or_else(|e| e.into_inner()),
         );
         for event in appearance {
-            self.loop_event(event.keyframe, event.old, "appearance", event.drift);
+            let kind = if event.merged.is_some() {
+                "merge"
+            } else {
+                "appearance"
+            };
+            self.loop_event(event.keyframe, event.old, kind, event.drift);
         }
         if let Some(worker) = self.worker.take() {
             drop(worker.wake);
@@ -965,6 +1100,48 @@ impl LiveSystem {
                 .unwrap_or_else(|e| e.into_inner()),
         );
         warnings.extend(refused);
+        let graph = self.graph.snapshot();
+        // The world is the first map: frames, keyframes and points of a map that no loop
+        // joined to it have no place in it (only the motion model's guess).
+        let in_world = |k: KeyframeId| graph.map_of(k) == Ok(FIRST_MAP);
+        let new_maps: Vec<NewMap> = self
+            .new_maps
+            .iter()
+            .map(|&(frame, lost_for, map)| {
+                let now = graph.moved_since(0, map).map_or(map, |(_, m)| m);
+                NewMap {
+                    frame,
+                    lost_for,
+                    map,
+                    joined: now == FIRST_MAP,
+                    frames: self.frames_in_map.get(&map).copied().unwrap_or(0),
+                }
+            })
+            .collect();
+        for m in &new_maps {
+            let NewMap {
+                frame,
+                lost_for,
+                map,
+                frames,
+                ..
+            } = m;
+            warnings.push(if m.joined {
+                format!(
+                    "frame {frame}: lost for {lost_for:.1} s, not found again in the map; a new map \
+                     (map {map}) was started there and a loop (kind \"merge\") later joined it to \
+                     the first: its frames have poses in the final trajectory, and in the live \
+                     one from the merge on"
+                )
+            } else {
+                format!(
+                    "frame {frame}: lost for {lost_for:.1} s, not found again in the map; a new map \
+                     (map {map}) was started there, which no loop joined to the first: its \
+                     {frames} frames have no pose in the trajectories, and its keyframes and \
+                     points are not in the map written"
+                )
+            });
+        }
         if self.loop_queue_full > 0 {
             warnings.push(format!(
                 "{} keyframes found the loop closer's queue full and were not entered into \
@@ -972,11 +1149,11 @@ impl LiveSystem {
                 self.loop_queue_full, self.config.loops.queue
             ));
         }
-        let graph = self.graph.snapshot();
         let store = self.store.read().unwrap_or_else(|e| e.into_inner()).clone();
         self.record.interrupted = interrupted;
         self.record.keyframes = graph
             .keyframes()
+            .filter(|&(k, _)| in_world(k))
             .filter_map(|(k, kf)| {
                 let images = store.get(k)?;
                 Some(KeyframeRecord {
@@ -989,6 +1166,7 @@ impl LiveSystem {
             .collect();
         self.record.points = graph
             .points()
+            .filter(|(_, pt)| in_world(pt.anchor()))
             .filter_map(|(p, pt)| {
                 let position = graph.point_world(p).ok()?;
                 let z = graph.keyframe(pt.anchor())?.observations().get(&p)?;
@@ -999,6 +1177,9 @@ impl LiveSystem {
         let mut final_trajectory = Trajectory::default();
         for &(i, r, rel) in &self.relative {
             let Ok(t_r) = graph.pose(r) else { continue };
+            if !in_world(r) {
+                continue;
+            }
             final_trajectory
                 .timestamps
                 .push(self.record.frames[i].timestamp);
@@ -1017,6 +1198,7 @@ impl LiveSystem {
             frames: self.reports,
             loops: self.loops,
             relocalisations: self.relocalisations,
+            new_maps,
             refused_loops,
             optimisations,
             graph,

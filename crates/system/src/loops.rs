@@ -67,6 +67,9 @@ pub struct AppearanceLoop {
     pub map_matches: usize,
     /// The correction the loop made to the new keyframe, against the path since the old one.
     pub drift: Option<LoopDrift>,
+    /// The loop joined two maps (the new keyframe's, started after a loss, moved onto the
+    /// old one's): the keyframes moved and how far the new keyframe moved (metres).
+    pub merged: Option<(usize, f64)>,
 }
 
 /// Why the loop closer failed (a keyframe without a loop is not a failure).
@@ -216,6 +219,19 @@ impl LoopCloser {
                 ransac_inliers: candidate.ransac_inliers,
                 map_matches,
                 drift,
+                merged: None,
+            }),
+            AppearanceClosure::Merged {
+                old,
+                keyframes,
+                displacement,
+            } => Some(AppearanceLoop {
+                keyframe: job.keyframe,
+                old,
+                ransac_inliers: candidate.ransac_inliers,
+                map_matches,
+                drift: None,
+                merged: Some((keyframes, displacement)),
             }),
             AppearanceClosure::TooMuchDrift(drift) => {
                 self.refused.push((job.keyframe, candidate.old, drift));

@@ -1269,6 +1269,7 @@ impl LiveRun<2> for MonoSystem {
             loops: self.events,
             // The monocular system starts a new map when lost (no relocalisation yet).
             relocalisations: Vec::new(),
+            new_maps: Vec::new(),
             refused_loops: Vec::new(),
             optimisations: Vec::new(),
             graph,

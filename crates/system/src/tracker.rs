@@ -15,7 +15,7 @@ use data::output::TrackingState;
 use geom::StereoCamera;
 use lie::{LieGroup, Se3, Sim3};
 use nalgebra::{SVector, Vector2, Vector3, Vector6};
-use slam::map::{KeyframeId, PointId, SharedGraph};
+use slam::map::{KeyframeId, PointId, SharedGraph, SlamGraph};
 use slam::tracking::{MotionOnlyOptions, PoseProblem, tracking_candidates};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -82,6 +82,8 @@ pub struct Tracker {
     camera: StereoCamera,
     motion: Motion,
     scratch: SearchScratch,
+    /// The graph's map merges seen ([`slam::map::SlamGraph::merges`]).
+    merges_seen: usize,
 }
 
 /// What the tracker carries from frame to frame: the motion model and the dense reference
@@ -97,6 +99,9 @@ pub struct Motion {
     /// the time of a step whose timestamps do not.
     period: f64,
     dense_reference: Option<DenseReference>,
+    /// The map whose frame the poses are in (`None` before the first frame is tracked after a
+    /// restart): a merge of that map into another moves them with it.
+    map: Option<usize>,
     /// The last frame was lost: the next must fit the map well (a good frame) to count as
     /// tracked again.
     recovering: bool,
@@ -139,8 +144,23 @@ impl Motion {
             velocity: Vector6::zeros(),
             period: Self::DEFAULT_PERIOD,
             dense_reference: None,
+            map: None,
             recovering: false,
         }
+    }
+
+    /// Moves the poses with their map when it is merged into map `into`, by `moved` (the
+    /// transform every keyframe of it took, `T ← T·moved`). The velocity, a motion in the
+    /// camera frame, stays.
+    fn follow(&mut self, moved: &Sim3, into: usize) {
+        let moved = |t: &Se3| Sim3::from_se3(t).compose(moved).rigid_part();
+        if let Some((_, last)) = &mut self.last {
+            *last = moved(last);
+        }
+        if let Some(r) = &mut self.dense_reference {
+            r.camera_from_world = moved(&r.camera_from_world);
+        }
+        self.map = Some(into);
     }
 
     /// Seconds from `from` to `to`: their timestamps' difference, or where that is below
@@ -191,13 +211,16 @@ impl Tracker {
             camera,
             motion: Motion::starting(None),
             scratch: SearchScratch::default(),
+            merges_seen: 0,
         }
     }
 
-    /// Records `frame`'s pose as known (the first keyframe), the start of the motion model.
-    pub fn set_pose(&mut self, frame: &Arc<FrameData>, camera_from_world: Se3) {
+    /// Records `frame`'s pose in map `map` as known (the first keyframe of a map), the start of
+    /// the motion model.
+    pub fn set_pose(&mut self, frame: &Arc<FrameData>, camera_from_world: Se3, map: usize) {
         self.motion.last = Some((Stamp::of(frame), camera_from_world));
         self.motion.velocity = Vector6::zeros();
+        self.motion.map = Some(map);
         if frame.depth.is_some() {
             self.motion.dense_reference = Some(DenseReference {
                 frame: frame.clone(),
@@ -231,6 +254,15 @@ impl Tracker {
         self.motion.velocity = Vector6::zeros();
     }
 
+    /// Applies the graph's map merges not seen yet to the motion model; returns the transform
+    /// its poses took (`T ← T·moved`), if any.
+    fn follow_merges(&mut self, graph: &SlamGraph<3>) -> Option<Sim3> {
+        let seen = std::mem::replace(&mut self.merges_seen, graph.merges().len());
+        let (moved, into) = graph.moved_since(seen, self.motion.map?)?;
+        self.motion.follow(&moved, into);
+        Some(moved)
+    }
+
     /// Tracks `frame` against the map.
     pub fn track(
         &mut self,
@@ -239,6 +271,8 @@ impl Tracker {
         frame: &Arc<FrameData>,
     ) -> Option<Tracked> {
         let mut timings = Vec::new();
+        // Poses whose map was merged into another since the last frame move with it.
+        self.follow_merges(&graph.read());
         // The constant-velocity prediction over the time since the last frame (dropped frames
         // bridged: Motion::elapsed).
         let predicted = self.motion.predict(Stamp::of(frame))?;
@@ -276,7 +310,12 @@ impl Tracker {
         let t = Instant::now();
         let (reference, t_ref, points) = {
             let g = graph.read();
+            // A merge meanwhile (the loop-closure thread) moves the prior too.
+            if let Some(moved) = self.follow_merges(&g) {
+                pose_prior = Sim3::from_se3(&pose_prior).compose(&moved).rigid_part();
+            }
             let reference = g.reference()?;
+            self.motion.map = g.map_of(reference).ok();
             let t_ref = g.pose(reference).ok()?;
             let points: Vec<SearchPoint> = tracking_candidates(&g, reference)
                 .into_iter()

@@ -61,11 +61,19 @@ pub struct Edge {
 pub struct Keyframe<const N: usize> {
     camera_from_world: Sim3,
     pose_version: Version,
+    /// The map it belongs to ([`SlamGraph::start_map`]).
+    map: usize,
     observations: BTreeMap<PointId, SVector<f64, N>>,
     edges: BTreeMap<KeyframeId, Edge>,
 }
 
 impl<const N: usize> Keyframe<N> {
+    /// The map the keyframe belongs to ([`SlamGraph::start_map`]; 0 unless a live system
+    /// started another).
+    pub fn map(&self) -> usize {
+        self.map
+    }
+
     /// The absolute pose `T_i` (scale 1 except after monocular loop closures).
     pub fn camera_from_world(&self) -> &Sim3 {
         &self.camera_from_world
@@ -157,6 +165,27 @@ pub struct SlamGraph<const N: usize> {
     num_keyframes: usize,
     num_points: usize,
     version: Version,
+    /// The map new keyframes join.
+    current_map: usize,
+    /// The number of maps started (the first included).
+    maps_started: usize,
+    /// The merges so far, oldest first.
+    merges: Vec<MapMerge>,
+}
+
+/// The map a graph starts with (the world: the frame of the first keyframe).
+pub const FIRST_MAP: usize = 0;
+
+/// A merge of one map into another ([`SlamGraph::merge_map`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapMerge {
+    /// The map merged (it exists no more).
+    pub from: usize,
+    /// The map it joined.
+    pub into: usize,
+    /// How its poses moved: every `camera_from_world` `T ← T·moved`. A pose kept outside the
+    /// graph in the merged map's frame (a tracker's last pose) follows alike.
+    pub moved: Sim3,
 }
 
 impl<const N: usize> SlamGraph<N> {
@@ -169,6 +198,9 @@ impl<const N: usize> SlamGraph<N> {
             num_keyframes: 0,
             num_points: 0,
             version: 0,
+            current_map: FIRST_MAP,
+            maps_started: FIRST_MAP + 1,
+            merges: Vec::new(),
         }
     }
 
@@ -267,6 +299,91 @@ impl<const N: usize> SlamGraph<N> {
         Ok(())
     }
 
+    /// Starts a new map: the keyframes added from now on belong to it, with poses in a frame
+    /// of their own, joined to the older maps by no edge until [`SlamGraph::merge_map`] (a
+    /// live system that lost its camera and could not find it again in the map goes on in a
+    /// new one, as ORB-SLAM3's atlas does). Returns its number.
+    pub fn start_map(&mut self) -> usize {
+        self.bump();
+        self.current_map = self.maps_started;
+        self.maps_started += 1;
+        self.current_map
+    }
+
+    /// The map new keyframes join.
+    pub fn current_map(&self) -> usize {
+        self.current_map
+    }
+
+    /// The map of keyframe `id`.
+    pub fn map_of(&self, id: KeyframeId) -> Result<usize, GraphError> {
+        Ok(self.kf(id)?.map)
+    }
+
+    /// Merges the map of `keyframe` into the map of `into`: its keyframes move as one rigid
+    /// body (a similarity) so that `keyframe` comes to `camera_from_world` (every keyframe
+    /// `T ← T·T_k⁻¹·T'_k`; the points, anchored in keyframes, move with them) and belong to
+    /// `into`'s map from then on. Returns how many keyframes moved (none if the two are in
+    /// one map already).
+    ///
+    /// What joining two maps needs before the edge between them goes in: the newer map's
+    /// poses are relative to a guessed start, metres off the old map, and an edge measuring
+    /// the true relative pose would meet that offset in the next optimisation.
+    pub fn merge_map(
+        &mut self,
+        keyframe: KeyframeId,
+        camera_from_world: &Sim3,
+        into: KeyframeId,
+    ) -> Result<usize, GraphError> {
+        let (from, to) = (self.map_of(keyframe)?, self.map_of(into)?);
+        if from == to {
+            // One map: nothing to join (and moving it would move `into` too).
+            return Ok(0);
+        }
+        let moved = self.pose(keyframe)?.inverse().compose(camera_from_world);
+        let v = self.bump();
+        let mut count = 0;
+        for k in self
+            .keyframes
+            .iter_mut()
+            .flatten()
+            .filter(|k| k.map == from)
+        {
+            k.camera_from_world = k.camera_from_world.compose(&moved);
+            k.pose_version = v;
+            k.map = to;
+            count += 1;
+        }
+        if self.current_map == from {
+            self.current_map = to;
+        }
+        self.merges.push(MapMerge {
+            from,
+            into: to,
+            moved,
+        });
+        Ok(count)
+    }
+
+    /// The merges so far, oldest first ([`SlamGraph::merge_map`]): a holder of poses in a map's
+    /// frame applies those after the last it saw.
+    pub fn merges(&self) -> &[MapMerge] {
+        &self.merges
+    }
+
+    /// What the merges after the first `seen` did to the poses of map `map`: the transform
+    /// `moved` they took (`T ← T·moved`) and the map they are in now; `None` if none moved it.
+    pub fn moved_since(&self, seen: usize, mut map: usize) -> Option<(Sim3, usize)> {
+        let mut moved: Option<Sim3> = None;
+        for merge in self.merges.iter().skip(seen) {
+            if merge.from == map {
+                moved = Some(moved.map_or(merge.moved, |m| m.compose(&merge.moved)));
+                map = merge.into;
+            }
+        }
+        moved.map(|m| (m, map))
+    }
+
     /// The reference keyframe `V_ref`.
     pub fn reference(&self) -> Option<KeyframeId> {
         self.reference
@@ -274,9 +391,12 @@ impl<const N: usize> SlamGraph<N> {
 
     /// Makes `id` the reference keyframe.
     pub fn set_reference(&mut self, id: KeyframeId) -> Result<(), GraphError> {
-        self.kf(id)?;
+        let map = self.kf(id)?.map;
         self.bump();
         self.reference = Some(id);
+        // New keyframes join the map the camera is tracked in (a relocalisation may have found
+        // it in an older map than the one started last).
+        self.current_map = map;
         Ok(())
     }
 
@@ -288,6 +408,7 @@ impl<const N: usize> SlamGraph<N> {
         self.keyframes.push(Some(Keyframe {
             camera_from_world,
             pose_version,
+            map: self.current_map,
             observations: BTreeMap::new(),
             edges: BTreeMap::new(),
         }));
@@ -993,5 +1114,69 @@ mod tests {
         assert!(g.set_pose(k(9), Sim3::identity()).is_err());
         assert!(!g.set_edge_relative(a, k(9), None));
         assert_eq!(g.version(), v);
+    }
+
+    /// Maps: keyframes join the map started last or the reference's; a merge moves the merged
+    /// map's keyframes (and so their points) as one body, relabels them, and is logged, so
+    /// that a pose kept outside the graph can follow a chain of merges; a merge within one map
+    /// does nothing.
+    #[test]
+    fn maps_start_merge_and_log_their_moves() {
+        use lie::{Se3, So3};
+        let mut g = SlamGraph::<2>::new();
+        let pose = |x: f64, yaw: f64| {
+            Sim3::from_se3(&Se3::new(So3::rot_y(yaw), Vector3::new(x, 0.0, 0.0)))
+        };
+        let a = g.add_keyframe(pose(0.0, 0.0));
+        assert_eq!(
+            (g.current_map(), g.map_of(a).unwrap()),
+            (FIRST_MAP, FIRST_MAP)
+        );
+        assert_eq!(g.start_map(), 1);
+        let b = g.add_keyframe(pose(5.0, 0.3));
+        let p = g
+            .add_point(b, Vector3::new(0.1, 0.0, 0.5), Vector2::zeros())
+            .unwrap();
+        let p_before = g.point_world(p).unwrap();
+        assert_eq!(g.map_of(b).unwrap(), 1);
+        // The reference decides the map new keyframes join.
+        g.set_reference(a).unwrap();
+        assert_eq!(g.current_map(), FIRST_MAP);
+        g.set_reference(b).unwrap();
+        assert_eq!(g.start_map(), 2);
+        let c = g.add_keyframe(pose(9.0, -0.2));
+        // Map 2 into map 1, then map 1 into the first.
+        let target_c = pose(7.0, 0.1);
+        assert_eq!(g.merge_map(c, &target_c, b).unwrap(), 1);
+        assert_eq!(g.map_of(c).unwrap(), 1);
+        let target_b = pose(1.0, 0.05);
+        let moved_b = g.pose(b).unwrap().inverse().compose(&target_b);
+        let c_before = g.pose(c).unwrap();
+        assert_eq!(g.merge_map(b, &target_b, a).unwrap(), 2);
+        assert!((g.pose(b).unwrap().log() - target_b.log()).norm() < 1e-12);
+        assert!((g.pose(c).unwrap().log() - c_before.compose(&moved_b).log()).norm() < 1e-12);
+        assert_eq!(
+            [g.map_of(b).unwrap(), g.map_of(c).unwrap()],
+            [FIRST_MAP, FIRST_MAP]
+        );
+        assert_eq!(g.current_map(), FIRST_MAP);
+        // The point moved with its anchor.
+        let p_after = g.point_world(p).unwrap();
+        assert!((p_after - moved_b.inverse().act(&p_before)).norm() < 1e-9);
+        // The log: a pose of map 2 from before both merges follows both.
+        assert_eq!(g.merges().len(), 2);
+        let (moved, into) = g.moved_since(0, 2).unwrap();
+        assert_eq!(into, FIRST_MAP);
+        let original_c = pose(9.0, -0.2);
+        assert!((original_c.compose(&moved).log() - g.pose(c).unwrap().log()).norm() < 1e-9);
+        assert!(
+            g.moved_since(1, 2).is_none(),
+            "the second merge moved map 1, not 2"
+        );
+        assert!(g.moved_since(0, FIRST_MAP).is_none());
+        // Within one map: nothing moves, nothing is logged.
+        assert_eq!(g.merge_map(c, &pose(50.0, 0.0), a).unwrap(), 0);
+        assert_eq!(g.merges().len(), 2);
+        assert!((g.pose(b).unwrap().log() - target_b.log()).norm() < 1e-12);
     }
 }

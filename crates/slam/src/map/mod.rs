@@ -10,6 +10,8 @@ pub mod graph;
 pub mod ids;
 pub mod shared;
 
-pub use graph::{BfsTree, Edge, GraphError, Keyframe, MapPoint, SlamGraph, Version};
+pub use graph::{
+    BfsTree, Edge, FIRST_MAP, GraphError, Keyframe, MapMerge, MapPoint, SlamGraph, Version,
+};
 pub use ids::{IdInt, KeyframeId, PointId};
 pub use shared::SharedGraph;

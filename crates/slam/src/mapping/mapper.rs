@@ -102,6 +102,18 @@ pub enum AppearanceClosure {
         /// The correction the loop made.
         drift: Option<LoopDrift>,
     },
+    /// The new keyframe was in another map than the old one (a map the live system started
+    /// after losing its camera, [`SlamGraph::start_map`]): its map was moved as one body onto
+    /// the old one by the loop's pose ([`SlamGraph::merge_map`]), then joined to it by the
+    /// loop's edge. No drift test: the correction is the offset between two maps, not drift.
+    Merged {
+        /// The old keyframe.
+        old: KeyframeId,
+        /// Keyframes moved (the newer map's).
+        keyframes: usize,
+        /// How far the new keyframe moved (metres).
+        displacement: f64,
+    },
     /// Too few matches (or too few consistent with one pose).
     TooFewMatches,
     /// The loop needed more correction than [`MappingConfig::appearance_max_drift`] allows.
@@ -112,7 +124,9 @@ impl AppearanceClosure {
     /// The old keyframe, if the loop was closed.
     pub fn closed(&self) -> Option<KeyframeId> {
         match self {
-            AppearanceClosure::Closed { old, .. } => Some(*old),
+            AppearanceClosure::Closed { old, .. } | AppearanceClosure::Merged { old, .. } => {
+                Some(*old)
+            }
             _ => None,
         }
     }
@@ -473,6 +487,23 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             q
         };
         let implied = query_from_matched.compose(&t_old);
+        if graph.map_of(keyframe)? != graph.map_of(place.old)? {
+            let centre = |t: &Sim3| t.inverse().act(&Vector3::zeros());
+            let displacement = (centre(&implied) - centre(&graph.pose(keyframe)?)).norm();
+            let keyframes = graph.merge_map(keyframe, &implied, place.old)?;
+            loop_closure::close_appearance_loop(
+                graph,
+                keyframe,
+                place.old,
+                query_from_matched,
+                &matches,
+            )?;
+            return Ok(AppearanceClosure::Merged {
+                old: place.old,
+                keyframes,
+                displacement,
+            });
+        }
         let drift = LoopDrift::of(graph, place.old, keyframe, &implied);
         if let Some(drift) = drift
             && !drift.within(&self.config.appearance_max_drift)
@@ -756,6 +787,65 @@ mod tests {
                 other => panic!("offset {offset}: {other:?}"),
             }
         }
+    }
+
+    /// The same loop with the new keyframe in a map of its own (started after a loss), 5 m
+    /// off: no drift test; its map (with a second keyframe and a point) moves onto the old
+    /// one by the loop's pose, and the two are one map, joined by the loop's edge.
+    #[test]
+    fn an_appearance_loop_into_another_map_merges_the_maps() {
+        let mapper = mapper();
+        let camera = *mapper.camera();
+        let truth = Se3::new(lie::So3::rot_y(0.08), Vector3::new(0.3, -0.05, 0.1));
+        let mut g = SlamGraph::<3>::new();
+        let old = g.add_keyframe(Sim3::identity());
+        assert_eq!(g.start_map(), 1);
+        let offset = Sim3::from_se3(&Se3::new(lie::So3::rot_z(0.4), Vector3::new(5.0, 1.0, 0.0)));
+        let new = g.add_keyframe(offset.compose(&Sim3::from_se3(&truth)));
+        let other = g.add_keyframe(offset);
+        let p = g
+            .add_point(other, Vector3::new(0.1, 0.2, 0.5), Vector3::zeros())
+            .unwrap();
+        g.add_edge(new, other, None).unwrap();
+        let relative = g.relative_pose(new, other).unwrap();
+        let x_before = g.point_in_frame(p, other).unwrap();
+        let correspondences: Vec<_> = old_place_points(&mut g, old, &camera)
+            .into_iter()
+            .map(|(p, x)| (p, camera.project(&truth.act(&x)).unwrap(), None))
+            .collect();
+        let place = AppearanceMatch {
+            old,
+            correspondences,
+        };
+        match mapper.close_appearance_loop(&mut g, new, &place).unwrap() {
+            AppearanceClosure::Merged {
+                old: k,
+                keyframes,
+                displacement,
+            } => {
+                assert_eq!((k, keyframes), (old, 2));
+                assert!(displacement > 4.0, "{displacement}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // The new keyframe where the loop puts it, its map moved with it, one map now.
+        let error = g
+            .pose(new)
+            .unwrap()
+            .compose(&g.pose(old).unwrap().inverse())
+            .compose(&Sim3::from_se3(&truth).inverse())
+            .log()
+            .norm();
+        assert!(error < 1e-6, "{error}");
+        let r = g
+            .relative_pose(new, other)
+            .unwrap()
+            .compose(&relative.inverse());
+        assert!(r.log().norm() < 1e-9);
+        assert!((g.point_in_frame(p, other).unwrap() - x_before).norm() < 1e-9);
+        assert_eq!([g.map_of(new).unwrap(), g.map_of(other).unwrap()], [0, 0]);
+        assert_eq!(g.current_map(), 0);
+        assert!(g.edge(old, new).is_some());
     }
 
     #[test]
