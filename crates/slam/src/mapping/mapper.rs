@@ -103,15 +103,16 @@ pub enum AppearanceClosure {
         drift: Option<LoopDrift>,
     },
     /// The new keyframe was in another map than the old one (a map the live system started
-    /// after losing its camera, [`SlamGraph::start_map`]): its map was moved as one body onto
-    /// the old one by the loop's pose ([`SlamGraph::merge_map`]), then joined to it by the
-    /// loop's edge. No drift test: the correction is the offset between two maps, not drift.
+    /// after losing its camera, [`SlamGraph::start_map`]): the younger of the two maps was
+    /// moved as one body onto the older by the loop's pose ([`SlamGraph::merge_map`]), then
+    /// the two joined by the loop's edge. No drift test: the correction is the offset between
+    /// two maps, not drift.
     Merged {
         /// The old keyframe.
         old: KeyframeId,
-        /// Keyframes moved (the newer map's).
+        /// Keyframes moved (the younger map's).
         keyframes: usize,
-        /// How far the new keyframe moved (metres).
+        /// How far the moved map's keyframe of the loop moved (metres).
         displacement: f64,
     },
     /// Too few matches (or too few consistent with one pose).
@@ -487,10 +488,25 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             q
         };
         let implied = query_from_matched.compose(&t_old);
-        if graph.map_of(keyframe)? != graph.map_of(place.old)? {
+        let (map_new, map_old) = (graph.map_of(keyframe)?, graph.map_of(place.old)?);
+        if map_new != map_old {
             let centre = |t: &Sim3| t.inverse().act(&Vector3::zeros());
-            let displacement = (centre(&implied) - centre(&graph.pose(keyframe)?)).norm();
-            let keyframes = graph.merge_map(keyframe, &implied, place.old)?;
+            // The younger map moves onto the older (the first map, the world, never moves): the
+            // new keyframe's, to where the loop puts it; or the old keyframe's (a camera found
+            // again in the first map that sees a map started after a loss), to where the loop
+            // puts that one.
+            let (moving, target, into) = if map_new > map_old {
+                (keyframe, implied, place.old)
+            } else {
+                let t_query = graph.pose(keyframe)?;
+                (
+                    place.old,
+                    query_from_matched.inverse().compose(&t_query),
+                    keyframe,
+                )
+            };
+            let displacement = (centre(&target) - centre(&graph.pose(moving)?)).norm();
+            let keyframes = graph.merge_map(moving, &target, into)?;
             loop_closure::close_appearance_loop(
                 graph,
                 keyframe,
@@ -845,6 +861,62 @@ mod tests {
         assert!((g.point_in_frame(p, other).unwrap() - x_before).norm() < 1e-9);
         assert_eq!([g.map_of(new).unwrap(), g.map_of(other).unwrap()], [0, 0]);
         assert_eq!(g.current_map(), 0);
+        assert!(g.edge(old, new).is_some());
+    }
+
+    /// The other way round: a keyframe of the first map (the camera found again there) sees a
+    /// place of a map started after a loss, 5 m off. The first map stays where it is; the
+    /// younger map moves so that its keyframe comes where the loop puts it.
+    #[test]
+    fn the_first_map_never_moves_in_a_merge() {
+        let mapper = mapper();
+        let camera = *mapper.camera();
+        let truth = Se3::new(lie::So3::rot_y(0.08), Vector3::new(0.3, -0.05, 0.1));
+        let mut g = SlamGraph::<3>::new();
+        let first = g.add_keyframe(Sim3::identity());
+        assert_eq!(g.start_map(), 1);
+        let offset = Sim3::from_se3(&Se3::new(lie::So3::rot_z(0.4), Vector3::new(5.0, 1.0, 0.0)));
+        let old = g.add_keyframe(offset);
+        let other = g.add_keyframe(offset.compose(&Sim3::from_se3(&truth)));
+        let correspondences: Vec<_> = old_place_points(&mut g, old, &camera)
+            .into_iter()
+            .map(|(p, x)| (p, camera.project(&truth.act(&x)).unwrap(), None))
+            .collect();
+        g.add_edge(old, other, None).unwrap();
+        let relative = g.relative_pose(old, other).unwrap();
+        // Found again in the first map: the new keyframe joins it, where the old place's
+        // keyframe truly is at the identity.
+        g.set_reference(first).unwrap();
+        let new = g.add_keyframe(Sim3::from_se3(&truth));
+        assert_eq!(g.map_of(new).unwrap(), 0);
+        let place = AppearanceMatch {
+            old,
+            correspondences,
+        };
+        match mapper.close_appearance_loop(&mut g, new, &place).unwrap() {
+            AppearanceClosure::Merged {
+                old: k,
+                keyframes,
+                displacement,
+            } => {
+                assert_eq!((k, keyframes), (old, 2));
+                assert!(displacement > 4.0, "{displacement}");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(g.pose(first).unwrap().log(), Sim3::identity().log());
+        assert!((g.pose(new).unwrap().log() - Sim3::from_se3(&truth).log()).norm() < 1e-12);
+        assert!(
+            g.pose(old).unwrap().log().norm() < 1e-6,
+            "the old place at the identity"
+        );
+        let r = g
+            .relative_pose(old, other)
+            .unwrap()
+            .compose(&relative.inverse());
+        assert!(r.log().norm() < 1e-9, "the younger map moved as one body");
+        assert_eq!([g.map_of(old).unwrap(), g.map_of(other).unwrap()], [0, 0]);
+        assert_eq!(g.merges()[0].from, 1);
         assert!(g.edge(old, new).is_some());
     }
 
