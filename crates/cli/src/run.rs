@@ -300,7 +300,13 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         }
         let (camera, config) = &dense_config;
         let t = Instant::now();
-        let model = system::dense_model::fuse(&result.graph, &result.keyframes, camera, config)?;
+        let model = system::dense_model::fuse(
+            &result.graph,
+            result.world_map,
+            &result.keyframes,
+            camera,
+            config,
+        )?;
         let path = settings.out.join(DENSE_FILE);
         let file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;

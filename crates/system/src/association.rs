@@ -9,7 +9,7 @@ use crate::keyframes::{KeyframeImages, KeyframeStore};
 use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
 use lie::{Se3, Sim3};
 use nalgebra::{SVector, Vector2, Vector3};
-use slam::map::{KeyframeId, PointId, SlamGraph};
+use slam::map::{KeyframeId, PointId, SlamGraph, Version};
 use slam::mapping::{AppearanceMatch, FrontEnd};
 use slam::tracking::TrackId;
 use std::collections::BTreeSet;
@@ -44,6 +44,10 @@ pub struct KeyframeAssociation<'a> {
     pub next_track: &'a mut TrackId,
     /// Points created.
     pub created: Vec<(TrackId, PointId)>,
+    /// The keyframe the pose was tracked against, its pose then and the graph's version then
+    /// (`crate::tracker::TrackedThen`): a pose tracked before another thread moved the map is
+    /// rebased at insertion. `None`: the pose is as of the graph at insertion.
+    pub tracked_against: Option<(KeyframeId, Sim3, Version)>,
     scratch: SearchScratch,
 }
 
@@ -75,6 +79,7 @@ impl<'a> KeyframeAssociation<'a> {
             min_disparity,
             next_track,
             created: Vec::new(),
+            tracked_against: None,
             scratch: SearchScratch::default(),
         }
     }
@@ -181,6 +186,10 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
 
     fn given_pose(&mut self, _: &SlamGraph<3>, _: &[(PointId, SVector<f64, 3>)]) -> Option<Sim3> {
         Some(self.camera_from_world)
+    }
+
+    fn given_pose_tracked_against(&self) -> Option<(KeyframeId, Sim3, Version)> {
+        self.tracked_against
     }
 
     /// None: the loop closer ([`crate::loops`]) recognises places in its own thread and

@@ -254,11 +254,12 @@ impl DenseModel {
 
 /// The dense model of a run (thesis §6.5.3): every keyframe of `graph` whose images `store`
 /// holds, its depth sampled ([`KeyframeCloud::from_depth`], in parallel) and placed with its
-/// final pose, in keyframe order (the model does not depend on the thread count). Keyframes of
-/// a map that no loop joined to the first (`slam::map::FIRST_MAP`) are left out: their place in
-/// the world is a guess.
+/// final pose, in keyframe order (the model does not depend on the thread count). Only the
+/// keyframes of map `map` (the map written, `crate::live::RunResult::world_map`): another map's
+/// place in the world is a guess.
 pub fn fuse(
     graph: &slam::map::SlamGraph<3>,
+    map: usize,
     store: &crate::keyframes::KeyframeStore,
     camera: &PinholeCamera,
     config: &DenseModelConfig,
@@ -267,7 +268,7 @@ pub fn fuse(
     let mut model = DenseModel::new(config.clone())?;
     let keyframes: Vec<_> = graph
         .keyframes()
-        .filter(|&(k, _)| graph.map_of(k) == Ok(slam::map::FIRST_MAP))
+        .filter(|&(k, _)| graph.map_of(k) == Ok(map))
         .filter_map(|(k, kf)| {
             let images = store.get(k)?;
             images.depth.as_ref()?;

@@ -23,7 +23,7 @@ use crate::frame::{FrameData, FrameError, SensorFrontEnd, pixel_depth};
 use crate::keyframes::{KeyframeReason, KeyframeStore, keyframe_reason, nearest_keyframe};
 use crate::loops::{AppearanceLoop, LoopCloser, LoopJob};
 use crate::place_recognition::{PlaceRecognition, PlaceRecognitionConfig, features};
-use crate::tracker::{Tracked, Tracker, TrackerStats};
+use crate::tracker::{Tracked, TrackedThen, Tracker, TrackerStats};
 use data::camera::SensorModel;
 use data::output::{FrameRecord, KeyframeRecord, MapPoint, RunRecord, StageTimings, TrackingState};
 use data::trajectory::Trajectory;
@@ -137,10 +137,12 @@ pub struct NewMap {
     pub lost_for: f64,
     /// Its number (`slam::map::SlamGraph::start_map`).
     pub map: usize,
-    /// A loop (kind `"merge"`) joined it to the first map, directly or through other maps:
-    /// its frames are in the final trajectory.
+    /// A loop (kind `"merge"`) joined it to the map written ([`RunResult::world_map`]),
+    /// directly or through other maps, or it is that map: its frames are in the final
+    /// trajectory.
     pub joined: bool,
-    /// Frames tracked in it before it joined the first map (these have no live pose).
+    /// Frames tracked in it while it was not the first map's (these have no live pose unless it
+    /// is the map written).
     pub frames: usize,
 }
 
@@ -175,6 +177,10 @@ pub struct RunResult<const N: usize = 3> {
     pub relocalisations: Vec<Relocalisation>,
     /// The maps started after a loss (stereo and RGB-D).
     pub new_maps: Vec<NewMap>,
+    /// The map written (its trajectories, keyframes and points): the one with the most
+    /// keyframes, `slam::map::FIRST_MAP` unless a camera lost early went on in a new map for
+    /// longer.
+    pub world_map: usize,
     /// Appearance loops refused by the drift test (stereo and RGB-D; the monocular system
     /// counts its own in a warning).
     pub refused_loops: Vec<RefusedLoop>,
@@ -322,8 +328,10 @@ pub struct LiveSystem {
     lost_since: Option<f64>,
     /// The maps started after a loss: `(frame, seconds lost before it, map)`.
     new_maps: Vec<(usize, f64, usize)>,
-    /// Per map other than the first: the frames tracked in it (before it joined the first).
-    frames_in_map: std::collections::BTreeMap<usize, usize>,
+    /// The frames tracked in a map other than the first, with no pose in the world then:
+    /// `(position in record.frames, map, pose in that map, state as tracked)` — their live pose
+    /// if that map turns out to be the world after all ([`LiveSystem::finish`]).
+    off_first: Vec<(usize, usize, Sim3, TrackingState)>,
     next_track: TrackId,
     record: RunRecord,
     /// Per frame with a pose: `(frame position in record.frames, reference, T·T_ref⁻¹)`.
@@ -402,7 +410,7 @@ impl LiveSystem {
             relocalisations: Vec::new(),
             lost_since: None,
             new_maps: Vec::new(),
-            frames_in_map: Default::default(),
+            off_first: Vec::new(),
             next_track: 0,
             record: RunRecord {
                 sequence: sequence.to_string(),
@@ -528,7 +536,7 @@ impl LiveSystem {
             ));
         }
         let pose = Sim3::identity();
-        let keyframe = self.make_keyframe(frame, pose, Vec::new())?;
+        let keyframe = self.make_keyframe(frame, pose, Vec::new(), None)?;
         self.tracker.set_pose(frame, Se3::identity(), 0);
         let state = TrackingState::Good;
         let state = self.push_frame(frame, Some(pose), state, Some(keyframe));
@@ -579,10 +587,13 @@ impl LiveSystem {
             state,
             matches,
             reference,
+            then,
             median_depth,
             stats,
             ..
         } = tracked;
+        // The keyframe the pose was tracked against (the reference may change below).
+        let tracker_reference = reference;
         // Revisits reuse the map (thesis §6.5.2): the keyframe that sees most of what this frame
         // tracked becomes the reference when it is at least as near as the current one, so a
         // camera browsing a mapped place tracks against its keyframes instead of adding new ones.
@@ -621,20 +632,13 @@ impl LiveSystem {
             }
             _ => reference,
         };
-        let mut camera_from_world = camera_from_world;
         let keyframe = match reason {
             Some(reason) => {
                 let t = Instant::now();
-                let (map, seen) = {
-                    let g = self.graph.read();
-                    (g.map_of(reference).ok(), g.merges().len())
-                };
-                let k = self.make_keyframe(frame, camera_from_world, matches)?;
-                // A loop closed inline (deterministic) that merged this map into an older one
-                // moved the map: the frame's pose moves with it.
-                if let Some((moved, _)) = map.and_then(|m| self.graph.read().moved_since(seen, m)) {
-                    camera_from_world = camera_from_world.compose(&moved);
-                }
+                // Inserted as tracked against `tracker_reference` then: rebased if another
+                // thread moved it meanwhile (an optimisation, a merge).
+                let tracked_against = Some((tracker_reference, then.reference_pose, then.version));
+                let k = self.make_keyframe(frame, camera_from_world, matches, tracked_against)?;
                 self.record
                     .timings
                     .record("keyframe: pipeline", t.elapsed());
@@ -645,11 +649,12 @@ impl LiveSystem {
         // A lost frame has no pose: the prior it was searched around is a guess (after a jump,
         // metres off), not an estimate, and the trajectory holds estimates only.
         let lost = matches!(state, TrackingState::Lost(_));
-        let state = self.push_frame(
+        let state = self.push_frame_tracked(
             frame,
             (!lost).then_some(camera_from_world),
             state,
             keyframe.as_ref().map(|(k, _)| *k).or(Some(reference)),
+            Some(&then),
         );
         Ok(FrameReport {
             index: frame.index,
@@ -688,7 +693,7 @@ impl LiveSystem {
             return Ok(None);
         }
         let map = self.graph.write().start_map();
-        let keyframe = self.make_keyframe(frame, guess, Vec::new())?;
+        let keyframe = self.make_keyframe(frame, guess, Vec::new(), None)?;
         // Where the keyframe is now: a loop closed inline (deterministic) may have merged the
         // new map into the old one already.
         let (pose, now_in) = {
@@ -857,10 +862,31 @@ impl LiveSystem {
         state: TrackingState,
         reference: Option<KeyframeId>,
     ) -> TrackingState {
+        self.push_frame_tracked(frame, camera_from_world, state, reference, None)
+    }
+
+    /// [`push_frame`](Self::push_frame) of a pose tracked against the graph as it was `then`:
+    /// if its map was merged into another since (moved by the loop-closure thread, or by a loop
+    /// closed inline while the frame became a keyframe), the pose moves with it.
+    fn push_frame_tracked(
+        &mut self,
+        frame: &FrameData,
+        camera_from_world: Option<Sim3>,
+        state: TrackingState,
+        reference: Option<KeyframeId>,
+        then: Option<&TrackedThen>,
+    ) -> TrackingState {
         let mut state = state;
+        let g = self.graph.read();
+        let camera_from_world = match (camera_from_world, then) {
+            (Some(pose), Some(then)) => Some(
+                g.moved_since(then.merges, then.map)
+                    .map_or(pose, |(moved, _)| pose.compose(&moved)),
+            ),
+            (pose, _) => pose,
+        };
         let mut world_pose = camera_from_world;
         if let (Some(pose), Some(r)) = (camera_from_world, reference) {
-            let g = self.graph.read();
             if let Ok(t_r) = g.pose(r) {
                 self.relative
                     .push((self.record.frames.len(), r, pose.compose(&t_r.inverse())));
@@ -869,7 +895,8 @@ impl LiveSystem {
                 && map != FIRST_MAP
             {
                 world_pose = None;
-                *self.frames_in_map.entry(map).or_default() += 1;
+                self.off_first
+                    .push((self.record.frames.len(), map, pose, state.clone()));
                 state = TrackingState::Weak(match state {
                     TrackingState::Weak(reason) => format!(
                         "{reason}; in map {map}, not joined to the first map yet: no pose in the world"
@@ -889,13 +916,15 @@ impl LiveSystem {
         state
     }
 
-    /// Makes `frame` a keyframe at `camera_from_world` with its tracked `matches`: the
-    /// keyframe pipeline's stages, then the optimisation (inline, or by waking its thread).
+    /// Makes `frame` a keyframe at `camera_from_world` with its tracked `matches` (tracked
+    /// against `tracked_against`, see `KeyframeAssociation::tracked_against`): the keyframe
+    /// pipeline's stages, then the optimisation (inline, or by waking its thread).
     fn make_keyframe(
         &mut self,
         frame: &Arc<FrameData>,
         camera_from_world: Sim3,
         matches: Vec<(slam::map::PointId, nalgebra::Vector3<f64>)>,
+        tracked_against: Option<(KeyframeId, Sim3, slam::map::Version)>,
     ) -> Result<KeyframeId, SystemError> {
         let store_lock = self.store.clone();
         let store = store_lock.read().unwrap_or_else(|e| e.into_inner());
@@ -910,6 +939,7 @@ impl LiveSystem {
             min_disparity,
             &mut self.next_track,
         );
+        association.tracked_against = tracked_against;
         let images = association.images();
         // The stages of the keyframe pipeline under the graph's write lock (they take a few
         // milliseconds; the optimisation is not among them).
@@ -1101,9 +1131,47 @@ impl LiveSystem {
         );
         warnings.extend(refused);
         let graph = self.graph.snapshot();
-        // The world is the first map: frames, keyframes and points of a map that no loop
-        // joined to it have no place in it (only the motion model's guess).
-        let in_world = |k: KeyframeId| graph.map_of(k) == Ok(FIRST_MAP);
+        // The world: the map with the most keyframes, the first on a tie (ORB-SLAM3 saves its
+        // biggest map). The first unless a camera lost early and never found again went on in
+        // a new map for longer. Frames, keyframes and points of another map have no place in it
+        // (only the motion model's guess).
+        let mut keyframes_in = std::collections::BTreeMap::<usize, usize>::new();
+        for (k, _) in graph.keyframes() {
+            if let Ok(m) = graph.map_of(k) {
+                *keyframes_in.entry(m).or_default() += 1;
+            }
+        }
+        let world = keyframes_in
+            .iter()
+            .max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))
+            .map_or(FIRST_MAP, |(m, _)| *m);
+        if world != FIRST_MAP {
+            let mut dropped = 0;
+            for f in &mut self.record.frames {
+                if f.world_from_camera.take().is_some() {
+                    dropped += 1;
+                    f.state = TrackingState::Weak(format!(
+                        "tracked in the first map, which is not the map written (map {world} holds more keyframes): no pose in the world"
+                    ));
+                }
+            }
+            for (i, map, pose, state) in &self.off_first {
+                if *map == world {
+                    let f = &mut self.record.frames[*i];
+                    f.world_from_camera = Some(pose.rigid_part().inverse());
+                    f.state = state.clone();
+                }
+            }
+            warnings.push(format!(
+                "the map written is map {world}, which holds more keyframes ({}) than the first \
+                 ({}), never joined to it: the first map's {dropped} frames have no pose in the \
+                 trajectories",
+                keyframes_in[&world],
+                keyframes_in.get(&FIRST_MAP).copied().unwrap_or(0)
+            ));
+        }
+        let in_world = |k: KeyframeId| graph.map_of(k) == Ok(world);
+        let frames_in = |map: usize| self.off_first.iter().filter(|f| f.1 == map).count();
         let new_maps: Vec<NewMap> = self
             .new_maps
             .iter()
@@ -1113,8 +1181,8 @@ impl LiveSystem {
                     frame,
                     lost_for,
                     map,
-                    joined: now == FIRST_MAP,
-                    frames: self.frames_in_map.get(&map).copied().unwrap_or(0),
+                    joined: now == world,
+                    frames: frames_in(map),
                 }
             })
             .collect();
@@ -1126,17 +1194,22 @@ impl LiveSystem {
                 frames,
                 ..
             } = m;
-            warnings.push(if m.joined {
+            warnings.push(if *map == world {
+                format!(
+                    "frame {frame}: lost for {lost_for:.1} s, not found again in the map; a new map \
+                     (map {map}) was started there: the map written"
+                )
+            } else if m.joined {
                 format!(
                     "frame {frame}: lost for {lost_for:.1} s, not found again in the map; a new map \
                      (map {map}) was started there and a loop (kind \"merge\") later joined it to \
-                     the first: its frames have poses in the final trajectory, and in the live \
-                     one from the merge on"
+                     the map written: its frames have poses in the final trajectory, and in the \
+                     live one from the merge on"
                 )
             } else {
                 format!(
                     "frame {frame}: lost for {lost_for:.1} s, not found again in the map; a new map \
-                     (map {map}) was started there, which no loop joined to the first: its \
+                     (map {map}) was started there, which no loop joined to the map written: its \
                      {frames} frames have no pose in the trajectories, and its keyframes and \
                      points are not in the map written"
                 )
@@ -1199,6 +1272,7 @@ impl LiveSystem {
             loops: self.loops,
             relocalisations: self.relocalisations,
             new_maps,
+            world_map: world,
             refused_loops,
             optimisations,
             graph,

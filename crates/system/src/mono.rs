@@ -1270,6 +1270,7 @@ impl LiveRun<2> for MonoSystem {
             // The monocular system starts a new map when lost (no relocalisation yet).
             relocalisations: Vec::new(),
             new_maps: Vec::new(),
+            world_map: slam::map::FIRST_MAP,
             refused_loops: Vec::new(),
             optimisations: Vec::new(),
             graph,

@@ -15,7 +15,7 @@ use data::output::TrackingState;
 use geom::StereoCamera;
 use lie::{LieGroup, Se3, Sim3};
 use nalgebra::{SVector, Vector2, Vector3, Vector6};
-use slam::map::{KeyframeId, PointId, SharedGraph, SlamGraph};
+use slam::map::{KeyframeId, PointId, SharedGraph, SlamGraph, Version};
 use slam::tracking::{MotionOnlyOptions, PoseProblem, tracking_candidates};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -58,6 +58,11 @@ pub struct Tracked {
     pub matches: Vec<(PointId, Vector3<f64>)>,
     /// The reference keyframe it was tracked against.
     pub reference: KeyframeId,
+    /// When it was tracked, as the graph was then: the reference's pose, the graph's version,
+    /// the map merges seen and the reference's map. Another thread may move the map before
+    /// the pose is recorded or made a keyframe (an optimisation, a merge); the pose is in the
+    /// frame of the map as it was then.
+    pub then: TrackedThen,
     /// Median depth of the found points (metres), for the keyframe criterion.
     pub median_depth: f64,
     /// Where the prior came from.
@@ -66,6 +71,19 @@ pub struct Tracked {
     pub stats: TrackerStats,
     /// Time per stage.
     pub timings: Vec<(&'static str, Duration)>,
+}
+
+/// The graph as a frame was tracked against it ([`Tracked::then`]).
+#[derive(Clone, Copy, Debug)]
+pub struct TrackedThen {
+    /// The reference keyframe's pose.
+    pub reference_pose: Sim3,
+    /// The graph's version.
+    pub version: Version,
+    /// How many map merges the graph had made (`SlamGraph::merges`).
+    pub merges: usize,
+    /// The reference keyframe's map.
+    pub map: usize,
 }
 
 /// The last frame with depth: the reference of the next dense alignment.
@@ -308,20 +326,27 @@ impl Tracker {
         timings.push(("track: dense prior", t.elapsed()));
         // 2. The candidates of N1, copied out under the read lock.
         let t = Instant::now();
-        let (reference, t_ref, points) = {
+        let (reference, t_ref, points, then) = {
             let g = graph.read();
             // A merge meanwhile (the loop-closure thread) moves the prior too.
             if let Some(moved) = self.follow_merges(&g) {
                 pose_prior = Sim3::from_se3(&pose_prior).compose(&moved).rigid_part();
             }
             let reference = g.reference()?;
-            self.motion.map = g.map_of(reference).ok();
+            let map = g.map_of(reference).ok()?;
+            self.motion.map = Some(map);
             let t_ref = g.pose(reference).ok()?;
             let points: Vec<SearchPoint> = tracking_candidates(&g, reference)
                 .into_iter()
                 .filter_map(|p| SearchPoint::from_graph(&g, p))
                 .collect();
-            (reference, t_ref, points)
+            let then = TrackedThen {
+                reference_pose: t_ref,
+                version: g.version(),
+                merges: g.merges().len(),
+                map,
+            };
+            (reference, t_ref, points, then)
         };
         let mut stats = TrackerStats {
             candidates: points.len(),
@@ -520,6 +545,7 @@ impl Tracker {
             state,
             matches,
             reference,
+            then,
             median_depth,
             prior: Some(prior),
             stats,

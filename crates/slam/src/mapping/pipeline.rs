@@ -32,6 +32,15 @@ pub trait FrontEnd<const N: usize> {
         matches: &[(PointId, SVector<f64, N>)],
     ) -> Option<Sim3>;
 
+    /// For a [`given_pose`](Self::given_pose) tracked before this call (in another thread's
+    /// time): the keyframe it was tracked against, that keyframe's pose then, and the graph's
+    /// version then. If the keyframe's pose changed since (an optimisation, a map merge), the
+    /// pose is rebased onto it at insertion ([`Mapper::insert_keyframe`]). `None` (the
+    /// default): the given pose is as of the graph now.
+    fn given_pose_tracked_against(&self) -> Option<(KeyframeId, Sim3, crate::map::Version)> {
+        None
+    }
+
     /// An old keyframe that `keyframe` revisits, found by place recognition (thesis §6.4.2),
     /// with its correspondences.
     fn recognise_place(
@@ -140,7 +149,13 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         let matches = front_end.match_candidates(graph, &candidates);
         let given = front_end.given_pose(graph, &matches);
         let tracked = matches.len();
-        let frame = self.track(graph, matches, given)?;
+        let mut frame = self.track(graph, matches, given)?;
+        if given.is_some()
+            && let Some((reference, then, version)) = front_end.given_pose_tracked_against()
+        {
+            frame.reference = Some((reference, then));
+            frame.version = version;
+        }
         stage("keyframe: track", &mut stage_times);
         let (keyframe, _) = self.insert_keyframe(graph, frame)?;
         stage("keyframe: insert and register", &mut stage_times);
