@@ -6,7 +6,7 @@ use crate::factors::InverseDepthCamera;
 use crate::loop_closure::MetricLoopClosure;
 use crate::map::{KeyframeId, PointId, SlamGraph};
 use crate::tracking::{TrackId, tracking_candidates};
-use lie::Sim3;
+use lie::{LieGroup, Sim3};
 use nalgebra::SVector;
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
@@ -35,8 +35,8 @@ pub trait FrontEnd<const N: usize> {
     /// For a [`given_pose`](Self::given_pose) tracked before this call (in another thread's
     /// time): the keyframe it was tracked against, that keyframe's pose then, and the graph's
     /// version then. If the keyframe's pose changed since (an optimisation, a map merge), the
-    /// pose is rebased onto it at insertion ([`Mapper::insert_keyframe`]). `None` (the
-    /// default): the given pose is as of the graph now.
+    /// pose is rebased onto it before insertion (as [`Mapper::insert_keyframe`] rebases a frame
+    /// the mapper tracked). `None` (the default): the given pose is as of the graph now.
     fn given_pose_tracked_against(&self) -> Option<(KeyframeId, Sim3, crate::map::Version)> {
         None
     }
@@ -150,11 +150,18 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         let given = front_end.given_pose(graph, &matches);
         let tracked = matches.len();
         let mut frame = self.track(graph, matches, given)?;
+        // A given pose tracked against a keyframe that moved since (another thread): rebased
+        // onto it, `T ← T·T_ref,then⁻¹·T_ref,now` (as `insert_keyframe` rebases a frame tracked
+        // here). The keyframe's edges are made as for any given pose.
         if given.is_some()
             && let Some((reference, then, version)) = front_end.given_pose_tracked_against()
+            && let Some(kf) = graph.keyframe(reference)
+            && kf.pose_version() > version
         {
-            frame.reference = Some((reference, then));
-            frame.version = version;
+            frame.camera_from_world = frame
+                .camera_from_world
+                .compose(&then.inverse())
+                .compose(kf.camera_from_world());
         }
         stage("keyframe: track", &mut stage_times);
         let (keyframe, _) = self.insert_keyframe(graph, frame)?;
