@@ -193,3 +193,131 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::MappingConfig;
+    use geom::{PinholeCamera, StereoCamera};
+    use lie::{Se3, So3};
+    use nalgebra::Vector3;
+
+    /// A front-end that gives the pose (tracked against `against` in another thread's time)
+    /// and nothing else.
+    struct Given {
+        pose: Sim3,
+        against: Option<(KeyframeId, Sim3, crate::map::Version)>,
+    }
+
+    impl FrontEnd<3> for Given {
+        fn match_candidates(
+            &mut self,
+            _: &SlamGraph<3>,
+            _: &BTreeSet<PointId>,
+        ) -> Vec<(PointId, SVector<f64, 3>)> {
+            Vec::new()
+        }
+        fn given_pose(
+            &mut self,
+            _: &SlamGraph<3>,
+            _: &[(PointId, SVector<f64, 3>)],
+        ) -> Option<Sim3> {
+            Some(self.pose)
+        }
+        fn given_pose_tracked_against(&self) -> Option<(KeyframeId, Sim3, crate::map::Version)> {
+            self.against
+        }
+        fn recognise_place(
+            &mut self,
+            _: &SlamGraph<3>,
+            _: KeyframeId,
+        ) -> Option<AppearanceMatch<3>> {
+            None
+        }
+        fn guided_search(
+            &mut self,
+            _: &SlamGraph<3>,
+            _: KeyframeId,
+            _: &[(PointId, SVector<f64, 3>)],
+        ) -> Vec<(PointId, SVector<f64, 3>)> {
+            Vec::new()
+        }
+        fn measurements(
+            &mut self,
+            _: &SlamGraph<3>,
+            _: KeyframeId,
+        ) -> Vec<(TrackId, SVector<f64, 3>, bool)> {
+            Vec::new()
+        }
+        fn points_created(&mut self, _: &[(TrackId, PointId)]) {}
+    }
+
+    /// A pose tracked against a keyframe that another thread then moved (here by a map merge
+    /// of 5 m) keeps its pose relative to that keyframe; one tracked against the graph as it
+    /// is is inserted as given.
+    #[test]
+    fn a_given_pose_tracked_before_its_reference_moved_is_rebased() {
+        let camera = StereoCamera::new(PinholeCamera::new(300.0, 300.0, 320.0, 240.0), 0.1);
+        let mut mapper = Mapper::new(camera, MappingConfig::new(1.0, (640.0, 480.0), 3));
+        let mut g = SlamGraph::<3>::new();
+        let pose = |x: f64, yaw: f64| {
+            Sim3::from_se3(&Se3::new(So3::rot_y(yaw), Vector3::new(x, 0.0, 0.0)))
+        };
+        let first = mapper
+            .map_keyframe(
+                &mut g,
+                &mut Given {
+                    pose: Sim3::identity(),
+                    against: None,
+                },
+            )
+            .unwrap()
+            .keyframe;
+        let (then, version) = (g.pose(first).unwrap(), g.version());
+        let tracked = pose(0.3, 0.1);
+        // Unmoved: inserted as given.
+        let k = mapper
+            .map_keyframe(
+                &mut g,
+                &mut Given {
+                    pose: tracked,
+                    against: Some((first, then, version)),
+                },
+            )
+            .unwrap()
+            .keyframe;
+        assert!((g.pose(k).unwrap().log() - tracked.log()).norm() < 1e-12);
+        // Moved meanwhile: `first`'s map merged into an older one, 5 m away.
+        let mut h = SlamGraph::<3>::new();
+        let old = h.add_keyframe(Sim3::identity());
+        h.start_map();
+        let first = h.add_keyframe(Sim3::identity());
+        h.set_reference(first).unwrap();
+        let (then, version) = (h.pose(first).unwrap(), h.version());
+        let target = pose(5.0, 0.4);
+        h.merge_map(first, &target, old).unwrap();
+        let k = mapper
+            .map_keyframe(
+                &mut h,
+                &mut Given {
+                    pose: tracked,
+                    against: Some((first, then, version)),
+                },
+            )
+            .unwrap()
+            .keyframe;
+        let relative = h
+            .pose(k)
+            .unwrap()
+            .compose(&h.pose(first).unwrap().inverse());
+        let expected = tracked.compose(&then.inverse());
+        assert!(
+            (relative.log() - expected.log()).norm() < 1e-12,
+            "the pose relative to its reference kept"
+        );
+        assert!(
+            (h.pose(k).unwrap().log() - tracked.log()).norm() > 1.0,
+            "moved with the map"
+        );
+    }
+}
