@@ -289,8 +289,6 @@ impl Tracker {
         frame: &Arc<FrameData>,
     ) -> Option<Tracked> {
         let mut timings = Vec::new();
-        // Poses whose map was merged into another since the last frame move with it.
-        self.follow_merges(&graph.read());
         // The constant-velocity prediction over the time since the last frame (dropped frames
         // bridged: Motion::elapsed).
         let predicted = self.motion.predict(Stamp::of(frame))?;
@@ -328,7 +326,8 @@ impl Tracker {
         let t = Instant::now();
         let (reference, t_ref, points, then) = {
             let g = graph.read();
-            // A merge meanwhile (the loop-closure thread) moves the prior too.
+            // Poses whose map was merged into another since the last frame (or meanwhile, by
+            // the loop-closure thread) move with it, the prior too.
             if let Some(moved) = self.follow_merges(&g) {
                 pose_prior = Sim3::from_se3(&pose_prior).compose(&moved).rigid_part();
             }

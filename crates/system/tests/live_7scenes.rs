@@ -59,7 +59,12 @@ fn live_ate(gt: &[lie::Se3], r: &RunResult) -> f64 {
         .iter()
         .map(|f| f.world_from_camera.expect("every frame tracked"))
         .collect();
-    data::eval::ate(gt, &est, data::eval::Alignment::Se3)
+    ate_se3(gt, &est)
+}
+
+/// ATE RMSE (metres, SE(3) alignment) of `est` against `gt`, pose by pose.
+fn ate_se3(gt: &[lie::Se3], est: &[lie::Se3]) -> f64 {
+    data::eval::ate(gt, est, data::eval::Alignment::Se3)
         .unwrap()
         .translation
         .rmse
@@ -366,10 +371,7 @@ fn a_camera_kidnapped_to_an_unmapped_place_stays_lost_until_it_sees_the_map() {
         .filter_map(|f| Some((truth[&f.index], f.world_from_camera?)))
         .unzip();
     assert!(est.len() + lost.len() == r.record.frames.len() && est.len() > 200);
-    let live = data::eval::ate(&gt, &est, data::eval::Alignment::Se3)
-        .unwrap()
-        .translation
-        .rmse;
+    let live = ate_se3(&gt, &est);
     assert!(live < 0.05, "live ATE {} over {} frames", live, est.len());
 }
 
@@ -397,12 +399,6 @@ fn a_camera_lost_in_an_unmapped_place_goes_on_in_a_new_map_merged_into_the_old()
     let n = frames.len();
     let mut config = SystemConfig::default();
     config.tracker.new_map_after = 1.0;
-    let ate = |est: &[lie::Se3], gt: &[lie::Se3]| {
-        data::eval::ate(gt, est, data::eval::Alignment::Se3)
-            .unwrap()
-            .translation
-            .rmse
-    };
     let final_ate = |r: &RunResult| {
         let t = &r.final_trajectory;
         let gt: Vec<lie::Se3> = t
@@ -410,7 +406,7 @@ fn a_camera_lost_in_an_unmapped_place_goes_on_in_a_new_map_merged_into_the_old()
             .iter()
             .map(|s| truth[&((s * 1e6).round() as u64)])
             .collect();
-        ate(&t.world_from_body, &gt)
+        ate_se3(&gt, &t.world_from_body)
     };
     // Threaded: the loop-closure thread merges the maps while the tracker goes on in the new
     // one, which then follows the merge (`SlamGraph::merges`): every frame not lost is in the
@@ -501,7 +497,7 @@ fn a_camera_lost_in_an_unmapped_place_goes_on_in_a_new_map_merged_into_the_old()
             ))
         })
         .unzip();
-    let live_ate = ate(&live, &gt);
+    let live_ate = ate_se3(&gt, &live);
     assert!(live_ate < 0.05, "live ATE {live_ate}");
     println!(
         "lost {} frames, new map at {}, merged at {merged}; ATE live {live_ate:.4} m over {}, final {final_ate:.4} m over {}; threaded: final {threaded_ate:.4} m over {with_pose}",
@@ -560,10 +556,7 @@ fn a_camera_lost_early_for_good_writes_the_larger_new_map() {
         .iter()
         .filter_map(|f| Some((truth[&f.index], f.world_from_camera?)))
         .unzip();
-    let live = data::eval::ate(&gt, &est, data::eval::Alignment::Se3)
-        .unwrap()
-        .translation
-        .rmse;
+    let live = ate_se3(&gt, &est);
     assert!(live < 0.05, "live ATE {live} over {}", est.len());
     assert_eq!(r.final_trajectory.timestamps.len(), est.len());
     assert_eq!(

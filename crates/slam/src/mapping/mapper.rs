@@ -227,6 +227,25 @@ pub struct Mapper<C, const N: usize> {
     inserted: usize,
 }
 
+/// `pose`, tracked against keyframe `reference` when that keyframe was at `then` (graph
+/// version `version`), rebased onto where the keyframe is now if its pose changed since
+/// (another thread's optimisation or map merge): `T ← T·T_ref,then⁻¹·T_ref,now`, the tracked
+/// pose relative to the keyframe kept. Unchanged otherwise (or if the keyframe is gone).
+pub(crate) fn rebased<const N: usize>(
+    graph: &SlamGraph<N>,
+    pose: Sim3,
+    reference: KeyframeId,
+    then: &Sim3,
+    version: Version,
+) -> Sim3 {
+    match graph.keyframe(reference) {
+        Some(kf) if kf.pose_version() > version => pose
+            .compose(&then.inverse())
+            .compose(kf.camera_from_world()),
+        _ => pose,
+    }
+}
+
 impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
     /// The stages for `camera` with `config`.
     pub fn new(camera: C, config: MappingConfig) -> Self {
@@ -338,15 +357,10 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         graph: &mut SlamGraph<N>,
         frame: TrackedFrame<N>,
     ) -> Result<(KeyframeId, usize), MappingError> {
-        let mut pose = frame.camera_from_world;
-        if let Some((r, then)) = frame.reference
-            && let Some(kf) = graph.keyframe(r)
-            && kf.pose_version() > frame.version
-        {
-            pose = pose
-                .compose(&then.inverse())
-                .compose(kf.camera_from_world());
-        }
+        let pose = match frame.reference {
+            Some((r, then)) => rebased(graph, frame.camera_from_world, r, &then, frame.version),
+            None => frame.camera_from_world,
+        };
         let kf = graph.add_keyframe(pose);
         let mut skipped = 0;
         for (p, z) in &frame.matches {
@@ -805,6 +819,27 @@ mod tests {
         }
     }
 
+    /// Closes `place`'s loop from `new`: a merge of `place.old`'s map and `new`'s, moving the
+    /// younger map's two keyframes by more than 4 m.
+    fn assert_merges_two_keyframes_5m(
+        mapper: &Mapper<StereoCamera, 3>,
+        g: &mut SlamGraph<3>,
+        new: KeyframeId,
+        place: &AppearanceMatch<3>,
+    ) {
+        match mapper.close_appearance_loop(g, new, place).unwrap() {
+            AppearanceClosure::Merged {
+                old: k,
+                keyframes,
+                displacement,
+            } => {
+                assert_eq!((k, keyframes), (place.old, 2));
+                assert!(displacement > 4.0, "{displacement}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
     /// The same loop with the new keyframe in a map of its own (started after a loss), 5 m
     /// off: no drift test; its map (with a second keyframe and a point) moves onto the old
     /// one by the loop's pose, and the two are one map, joined by the loop's edge.
@@ -833,17 +868,7 @@ mod tests {
             old,
             correspondences,
         };
-        match mapper.close_appearance_loop(&mut g, new, &place).unwrap() {
-            AppearanceClosure::Merged {
-                old: k,
-                keyframes,
-                displacement,
-            } => {
-                assert_eq!((k, keyframes), (old, 2));
-                assert!(displacement > 4.0, "{displacement}");
-            }
-            other => panic!("{other:?}"),
-        }
+        assert_merges_two_keyframes_5m(&mapper, &mut g, new, &place);
         // The new keyframe where the loop puts it, its map moved with it, one map now.
         let error = g
             .pose(new)
@@ -893,17 +918,7 @@ mod tests {
             old,
             correspondences,
         };
-        match mapper.close_appearance_loop(&mut g, new, &place).unwrap() {
-            AppearanceClosure::Merged {
-                old: k,
-                keyframes,
-                displacement,
-            } => {
-                assert_eq!((k, keyframes), (old, 2));
-                assert!(displacement > 4.0, "{displacement}");
-            }
-            other => panic!("{other:?}"),
-        }
+        assert_merges_two_keyframes_5m(&mapper, &mut g, new, &place);
         assert_eq!(g.pose(first).unwrap().log(), Sim3::identity().log());
         assert!((g.pose(new).unwrap().log() - Sim3::from_se3(&truth).log()).norm() < 1e-12);
         assert!(

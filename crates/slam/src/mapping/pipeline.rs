@@ -6,7 +6,7 @@ use crate::factors::InverseDepthCamera;
 use crate::loop_closure::MetricLoopClosure;
 use crate::map::{KeyframeId, PointId, SlamGraph};
 use crate::tracking::{TrackId, tracking_candidates};
-use lie::{LieGroup, Sim3};
+use lie::Sim3;
 use nalgebra::SVector;
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
@@ -151,17 +151,13 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         let tracked = matches.len();
         let mut frame = self.track(graph, matches, given)?;
         // A given pose tracked against a keyframe that moved since (another thread): rebased
-        // onto it, `T ← T·T_ref,then⁻¹·T_ref,now` (as `insert_keyframe` rebases a frame tracked
-        // here). The keyframe's edges are made as for any given pose.
+        // onto it (as `insert_keyframe` rebases a frame tracked here). The keyframe's edges are
+        // made as for any given pose.
         if given.is_some()
             && let Some((reference, then, version)) = front_end.given_pose_tracked_against()
-            && let Some(kf) = graph.keyframe(reference)
-            && kf.pose_version() > version
         {
-            frame.camera_from_world = frame
-                .camera_from_world
-                .compose(&then.inverse())
-                .compose(kf.camera_from_world());
+            frame.camera_from_world =
+                super::mapper::rebased(graph, frame.camera_from_world, reference, &then, version);
         }
         stage("keyframe: track", &mut stage_times);
         let (keyframe, _) = self.insert_keyframe(graph, frame)?;
@@ -199,7 +195,7 @@ mod tests {
     use super::*;
     use crate::mapping::MappingConfig;
     use geom::{PinholeCamera, StereoCamera};
-    use lie::{Se3, So3};
+    use lie::{LieGroup, Se3, So3};
     use nalgebra::Vector3;
 
     /// A front-end that gives the pose (tracked against `against` in another thread's time)
