@@ -536,7 +536,7 @@ impl LiveSystem {
             ));
         }
         let pose = Sim3::identity();
-        let keyframe = self.make_keyframe(frame, pose, Vec::new(), None)?;
+        let (keyframe, _) = self.make_keyframe(frame, pose, Vec::new(), None, false)?;
         self.tracker.set_pose(frame, Se3::identity(), 0);
         let state = TrackingState::Good;
         let state = self.push_frame(frame, Some(pose), state, Some(keyframe));
@@ -638,7 +638,8 @@ impl LiveSystem {
                 // Inserted as tracked against `tracker_reference` then: rebased if another
                 // thread moved it meanwhile (an optimisation, a merge).
                 let tracked_against = Some((tracker_reference, then.reference_pose, then.version));
-                let k = self.make_keyframe(frame, camera_from_world, matches, tracked_against)?;
+                let (k, _) =
+                    self.make_keyframe(frame, camera_from_world, matches, tracked_against, false)?;
                 self.record
                     .timings
                     .record("keyframe: pipeline", t.elapsed());
@@ -692,8 +693,7 @@ impl LiveSystem {
         if with_depth < self.config.tracker.min_good {
             return Ok(None);
         }
-        let map = self.graph.write().start_map();
-        let keyframe = self.make_keyframe(frame, guess, Vec::new(), None)?;
+        let (keyframe, map) = self.make_keyframe(frame, guess, Vec::new(), None, true)?;
         // Where the keyframe is now: a loop closed inline (deterministic) may have merged the
         // new map into the old one already.
         let (pose, now_in) = {
@@ -918,14 +918,18 @@ impl LiveSystem {
 
     /// Makes `frame` a keyframe at `camera_from_world` with its tracked `matches` (tracked
     /// against `tracked_against`, see `KeyframeAssociation::tracked_against`): the keyframe
-    /// pipeline's stages, then the optimisation (inline, or by waking its thread).
+    /// pipeline's stages, then the optimisation (inline, or by waking its thread). With
+    /// `new_map`, the first keyframe of a new map (`slam::map::SlamGraph::start_map`), started
+    /// under the same write lock, so that no other thread sees the new map without it (nor the
+    /// graph without a reference keyframe). Returns the keyframe and the map it was made in.
     fn make_keyframe(
         &mut self,
         frame: &Arc<FrameData>,
         camera_from_world: Sim3,
         matches: Vec<(slam::map::PointId, nalgebra::Vector3<f64>)>,
         tracked_against: Option<(KeyframeId, Sim3, slam::map::Version)>,
-    ) -> Result<KeyframeId, SystemError> {
+        new_map: bool,
+    ) -> Result<(KeyframeId, usize), SystemError> {
         let store_lock = self.store.clone();
         let store = store_lock.read().unwrap_or_else(|e| e.into_inner());
         let min_disparity = self.mapper.config().min_disparity;
@@ -943,13 +947,21 @@ impl LiveSystem {
         let images = association.images();
         // The stages of the keyframe pipeline under the graph's write lock (they take a few
         // milliseconds; the optimisation is not among them).
-        let report: KeyframeReport = self
-            .mapper
-            .map_keyframe(&mut self.graph.write(), &mut association)
-            .map_err(|source| SystemError::Mapping {
-                frame: frame.index,
-                source,
-            })?;
+        let (report, map) = {
+            let mut graph = self.graph.write();
+            if new_map {
+                graph.start_map();
+            }
+            let report: KeyframeReport = self
+                .mapper
+                .map_keyframe(&mut graph, &mut association)
+                .map_err(|source| SystemError::Mapping {
+                    frame: frame.index,
+                    source,
+                })?;
+            let map = graph.map_of(report.keyframe).unwrap_or(FIRST_MAP);
+            (report, map)
+        };
         let keyframe = report.keyframe;
         for (stage, d) in &report.stage_times {
             self.record.timings.record(stage, *d);
@@ -967,7 +979,7 @@ impl LiveSystem {
         }
         self.close_large_loop(keyframe, frame);
         self.optimise()?;
-        Ok(keyframe)
+        Ok((keyframe, map))
     }
 
     /// Hands a new keyframe to the loop closer: closes its loop now (inline) or queues it.

@@ -410,10 +410,10 @@ fn a_camera_lost_in_an_unmapped_place_goes_on_in_a_new_map_merged_into_the_old()
     };
     // Threaded: the loop-closure thread merges the maps while the tracker goes on in the new
     // one, which then follows the merge (`SlamGraph::merges`): every frame not lost is in the
-    // final trajectory. Its ATE is printed, not asserted: with the test binary's other tests
-    // oversubscribing the two cores, the final map came out distorted (20–35 cm) in about one
-    // run in four, after a merge placed a few centimetres off and the appearance loops that
-    // followed corrected it by 10–20 cm each (a known issue; the live trajectory stays right).
+    // final trajectory, as accurate as the deterministic run's. (Before the new map's first
+    // keyframe stopped being registered to the old map's reference, the edge between the two
+    // maps measured the guessed offset, and in about one threaded run in four, under load,
+    // the optimisation pulled the new map's first keyframes back there: 15–42 cm.)
     let r = run_with(&path, frames.clone(), Mode::Threaded, config.clone());
     assert!(
         r.new_maps.iter().any(|m| m.joined),
@@ -426,6 +426,7 @@ fn a_camera_lost_in_an_unmapped_place_goes_on_in_a_new_map_merged_into_the_old()
         with_pose + 20 >= n,
         "threaded: {with_pose} of {n} frames in the final trajectory"
     );
+    assert!(threaded_ate < 0.05, "threaded: final ATE {threaded_ate}");
     let r = run_with(&path, frames, Mode::Deterministic, config);
     let states: Vec<&TrackingState> = r.record.frames.iter().map(|f| &f.state).collect();
     let lost: Vec<usize> = (0..n)

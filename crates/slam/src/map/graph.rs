@@ -303,8 +303,13 @@ impl<const N: usize> SlamGraph<N> {
     /// of their own, joined to the older maps by no edge until [`SlamGraph::merge_map`] (a
     /// live system that lost its camera and could not find it again in the map goes on in a
     /// new one, as ORB-SLAM3's atlas does). Returns its number.
+    ///
+    /// The graph has no reference keyframe until the new map's first keyframe is made one
+    /// (the old reference is in another map: a keyframe registered to it would join the maps
+    /// by an edge measuring the guessed offset between their frames).
     pub fn start_map(&mut self) -> usize {
         self.bump();
+        self.reference = None;
         self.current_map = self.maps_started;
         self.maps_started += 1;
         self.current_map

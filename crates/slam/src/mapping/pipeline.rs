@@ -316,4 +316,42 @@ mod tests {
             "moved with the map"
         );
     }
+
+    /// A keyframe given after the camera was lost goes into the new map joined to no keyframe
+    /// of the old one: the graph has no reference after `start_map`, so the keyframe is not
+    /// registered to the old reference by an edge that would measure the guessed offset
+    /// between the two maps' frames (and pull the new map back there once a loop merges it).
+    #[test]
+    fn the_first_keyframe_of_a_new_map_has_no_edge_to_the_old_map() {
+        let camera = StereoCamera::new(PinholeCamera::new(300.0, 300.0, 320.0, 240.0), 0.1);
+        let mut mapper = Mapper::new(camera, MappingConfig::new(1.0, (640.0, 480.0), 3));
+        let mut g = SlamGraph::<3>::new();
+        let mut given = |g: &mut SlamGraph<3>, x: f64| {
+            let pose = Sim3::from_se3(&Se3::new(So3::identity(), Vector3::new(x, 0.0, 0.0)));
+            mapper
+                .map_keyframe(
+                    g,
+                    &mut Given {
+                        pose,
+                        against: None,
+                    },
+                )
+                .unwrap()
+                .keyframe
+        };
+        let a = given(&mut g, 0.0);
+        let b = given(&mut g, 0.2);
+        // In one map, a keyframe without shared points is registered to the reference.
+        assert!(g.keyframe(b).unwrap().edges().contains_key(&a));
+        assert_eq!(g.start_map(), 1);
+        assert_eq!(g.reference(), None);
+        let c = given(&mut g, 3.0);
+        assert_eq!(g.map_of(c).unwrap(), 1);
+        assert!(g.keyframe(c).unwrap().edges().is_empty());
+        assert!(!g.keyframe(b).unwrap().edges().contains_key(&c));
+        assert_eq!(g.reference(), Some(c));
+        let d = given(&mut g, 3.2);
+        assert_eq!(g.map_of(d).unwrap(), 1);
+        assert!(g.keyframe(d).unwrap().edges().contains_key(&c));
+    }
 }
