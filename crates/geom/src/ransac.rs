@@ -51,6 +51,14 @@ pub trait Estimator {
     /// The error of datum `i` under `model`, a non-negative distance compared with
     /// [`RansacConfig::threshold`] (`∞` when undefined, e.g. a point behind a camera).
     fn error(&self, model: &Self::Model, i: usize) -> f64;
+
+    /// [`Estimator::error`] where it is at most `threshold`, and any value above `threshold`
+    /// where it is not: all RANSAC asks of a datum (MSAC charges an outlier `τ²` whatever its
+    /// error). An estimator whose error is costly overrides it with a cheap bound that settles
+    /// most outliers of a wrong model without computing their error.
+    fn error_within(&self, model: &Self::Model, i: usize, _threshold: f64) -> f64 {
+        self.error(model, i)
+    }
 }
 
 /// Parameters of [`ransac`].
@@ -123,7 +131,7 @@ fn msac_cost<E: Estimator>(estimator: &E, model: &E::Model, threshold: f64) -> (
     let mut cost = 0.0;
     let mut inliers = 0;
     for i in 0..estimator.num_data() {
-        let e = estimator.error(model, i);
+        let e = estimator.error_within(model, i, threshold);
         if e <= threshold {
             inliers += 1;
             cost += e * e;
@@ -136,7 +144,7 @@ fn msac_cost<E: Estimator>(estimator: &E, model: &E::Model, threshold: f64) -> (
 
 fn inlier_set<E: Estimator>(estimator: &E, model: &E::Model, threshold: f64) -> Vec<usize> {
     (0..estimator.num_data())
-        .filter(|&i| estimator.error(model, i) <= threshold)
+        .filter(|&i| estimator.error_within(model, i, threshold) <= threshold)
         .collect()
 }
 

@@ -143,9 +143,34 @@ pub struct RigidEstimator<'a> {
     pub source: &'a [Vector3<f64>],
     /// Their covariances.
     pub source_cov: &'a [Matrix3<f64>],
+    /// Per correspondence, `tr Σ_q + tr Σ_o`: at least the largest eigenvalue of
+    /// `Σ_q + R Σ_o Rᵀ` whatever `R` (a rotation keeps the eigenvalues; a covariance's largest
+    /// is at most its trace), so `e² ≥ ‖Δ‖² / (tr Σ_q + tr Σ_o)`.
+    spread: Vec<f64>,
 }
 
-impl RigidEstimator<'_> {
+impl<'a> RigidEstimator<'a> {
+    /// The problem of the correspondences `target_i ≈ T·source_i` with their covariances.
+    pub fn new(
+        target: &'a [Vector3<f64>],
+        target_cov: &'a [Matrix3<f64>],
+        source: &'a [Vector3<f64>],
+        source_cov: &'a [Matrix3<f64>],
+    ) -> Self {
+        let spread = target_cov
+            .iter()
+            .zip(source_cov)
+            .map(|(q, o)| q.trace() + o.trace())
+            .collect();
+        RigidEstimator {
+            target,
+            target_cov,
+            source,
+            source_cov,
+            spread,
+        }
+    }
+
     fn fit(&self, indices: &[usize]) -> Option<Se3> {
         let t: Vec<_> = indices.iter().map(|&i| self.target[i]).collect();
         let s: Vec<_> = indices.iter().map(|&i| self.source[i]).collect();
@@ -178,6 +203,19 @@ impl Estimator for RigidEstimator<'_> {
             (&self.target[i], &self.target_cov[i]),
             (&self.source[i], &self.source_cov[i]),
         )
+    }
+
+    /// The bound of [`RigidEstimator::spread`] first: a correspondence whose Euclidean error
+    /// alone puts it beyond the gate is an outlier without the covariance's Cholesky (most
+    /// correspondences under a wrong model: a third of place recognition's time went to
+    /// the Mahalanobis distance). The margin keeps rounding from deciding a datum the exact
+    /// distance would decide otherwise.
+    fn error_within(&self, model: &Se3, i: usize, threshold: f64) -> f64 {
+        let delta = self.target[i] - model.act(&self.source[i]);
+        if delta.norm_squared() > threshold * threshold * self.spread[i] * (1.0 + 1e-9) {
+            return f64::INFINITY;
+        }
+        self.error(model, i)
     }
 }
 
@@ -273,12 +311,7 @@ fn verify_rigid(
     let target_cov: Vec<_> = matches.iter().map(|m| cov(query, m.query)).collect();
     let source_cov: Vec<_> = matches.iter().map(|m| cov(old, m.train)).collect();
     let gate = config.inlier_gate();
-    let estimator = RigidEstimator {
-        target: &target,
-        target_cov: &target_cov,
-        source: &source,
-        source_cov: &source_cov,
-    };
+    let estimator = RigidEstimator::new(&target, &target_cov, &source, &source_cov);
     let ransac_config = RansacConfig {
         threshold: gate,
         confidence: config.ransac_confidence,
@@ -541,12 +574,7 @@ mod tests {
             let cov = |p: &Vector3<f64>| point_covariance(p, 1.0, focal, &config);
             let target_cov: Vec<_> = target.iter().map(cov).collect();
             let source_cov: Vec<_> = source.iter().map(cov).collect();
-            let estimator = RigidEstimator {
-                target: &target,
-                target_cov: &target_cov,
-                source: &source,
-                source_cov: &source_cov,
-            };
+            let estimator = RigidEstimator::new(&target, &target_cov, &source, &source_cov);
             let r = ransac(
                 &estimator,
                 &RansacConfig {
@@ -660,5 +688,70 @@ mod tests {
         let dx = Vector3::new(0.02, 0.0, 0.0);
         let e_lat = mahalanobis(&identity, (&(far + dx), &c(&far)), (&far, &c(&far)));
         assert!(e_lat > e_far, "{e_lat} {e_far}");
+    }
+
+    /// The bound in `RigidEstimator::error_within` decides every datum as the exact
+    /// Mahalanobis distance does, and gives that distance for the inliers: random points at
+    /// 0.5–8 m under random motions, errors from millimetres to metres, near and far pyramid
+    /// levels.
+    #[test]
+    fn the_cheap_bound_decides_as_the_mahalanobis_distance() {
+        use rand::{Rng, SeedableRng};
+        let config = PlaceRecognitionConfig::default();
+        let gate = config.inlier_gate();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n = 400;
+        let mut target = Vec::new();
+        let mut source = Vec::new();
+        let mut target_cov = Vec::new();
+        let mut source_cov = Vec::new();
+        let truth = Se3::exp(&nalgebra::Vector6::new(0.3, -0.1, 0.2, 0.1, -0.2, 0.05));
+        for i in 0..n {
+            let x_o = Vector3::new(
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-1.5..1.5),
+                rng.random_range(0.5..8.0),
+            );
+            let noise = 10f64.powf(rng.random_range(-3.0..0.3));
+            let dir = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            let x_q = truth.act(&x_o) + dir * noise;
+            let level = (1.2f64).powi((i % 8) as i32);
+            source_cov.push(point_covariance(&x_o, level, 585.0, &config));
+            target_cov.push(point_covariance(&x_q, level, 585.0, &config));
+            source.push(x_o);
+            target.push(x_q);
+        }
+        let estimator = RigidEstimator::new(&target, &target_cov, &source, &source_cov);
+        let (mut inside, mut bounded) = (0, 0);
+        for m in 0..20 {
+            let model = if m == 0 {
+                truth
+            } else {
+                let d = nalgebra::Vector6::from_fn(|_, _| rng.random_range(-0.05..0.05));
+                Se3::exp(&d).compose(&truth)
+            };
+            for i in 0..n {
+                let exact = estimator.error(&model, i);
+                let within = estimator.error_within(&model, i, gate);
+                assert_eq!(exact <= gate, within <= gate, "datum {i}: {exact} {within}");
+                if exact <= gate {
+                    assert_eq!(exact, within);
+                    inside += 1;
+                } else if within.is_infinite() {
+                    bounded += 1;
+                }
+            }
+        }
+        // Both kinds occur, and the bound settles most outliers.
+        assert!(inside > 100, "{inside}");
+        assert!(
+            bounded > (20 * n - inside) / 2,
+            "{bounded} of {}",
+            20 * n - inside
+        );
     }
 }
