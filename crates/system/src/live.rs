@@ -128,12 +128,14 @@ pub struct Relocalisation {
 }
 
 /// A map started after the camera was lost for `tracker.new_map_after` seconds
-/// ([`LiveSystem::start_map`]).
+/// ([`LiveSystem::start_map`]); monocular: a map bootstrapped again after tracking failed
+/// (`crate::mono`), which nothing joins to another.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NewMap {
-    /// The frame it started at (its index in the sequence).
+    /// The frame it started at (its index in the sequence; monocular: its first frame with a
+    /// pose).
     pub frame: usize,
-    /// Seconds the camera had been lost.
+    /// Seconds the camera had been lost (monocular: since the last pose in the map before).
     pub lost_for: f64,
     /// Its number (`slam::map::SlamGraph::start_map`).
     pub map: usize,
@@ -175,7 +177,7 @@ pub struct RunResult<const N: usize = 3> {
     pub loops: Vec<LoopEvent>,
     /// The lost frames found again by appearance (stereo and RGB-D).
     pub relocalisations: Vec<Relocalisation>,
-    /// The maps started after a loss (stereo and RGB-D).
+    /// The maps started after a loss.
     pub new_maps: Vec<NewMap>,
     /// The map written (its trajectories, keyframes and points): the one with the most
     /// keyframes, `slam::map::FIRST_MAP` unless a camera lost early went on in a new map for

@@ -20,13 +20,15 @@
 //!
 //! When the bootstrap finds no geometry within `max_bootstrap_frames`, or tracking loses the
 //! map, the system starts again from the current frame: the frames in between are `lost` with
-//! the reason, and the new map has its own frame and scale (there is no relocalisation yet;
-//! the run says how often it restarted).
+//! the reason, and the new map has its own frame and scale (there is no relocalisation or
+//! merge yet). The outputs hold one map, as the stereo system's: the one with the most
+//! keyframes; the other maps' frames have no pose, and their states say which map tracked them
+//! (`RunResult::new_maps` lists the maps started after a loss).
 
 use crate::config::{MonoConfig, SystemConfig};
 use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
-use crate::live::{FrameReport, LiveRun, LoopEvent, RunResult, SystemError, skipped_frame};
+use crate::live::{FrameReport, LiveRun, LoopEvent, NewMap, RunResult, SystemError, skipped_frame};
 use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
 use crate::search::{SearchPoint, SearchScratch, predict, relocate, search, view_angle};
 use crate::tracker::TrackerStats;
@@ -38,8 +40,8 @@ use nalgebra::{Vector2, Vector3};
 use slam::exploration::{ExplorationConfig, ExplorationError, LocalWindow, MonoExplorer, TrackId};
 use slam::loop_closure::correction::correct_graph;
 use slam::loop_closure::{CorrectionGroup, DriftLimits, LoopDrift, LoopEdge};
-use slam::map::KeyframeId;
 use slam::map::SlamGraph;
+use slam::map::{FIRST_MAP, KeyframeId};
 use slam::pose_graph::{PoseGraphJacobian, rigid_from_similarity};
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
@@ -264,10 +266,15 @@ pub struct MonoSystem {
     explorer: Option<MonoExplorer>,
     record: RunRecord,
     reports: Vec<FrameReport>,
-    /// Every earlier map's final frame poses `(frame, camera_from_world)`.
-    finished: Vec<(usize, Se3)>,
-    /// Maps lost after their bootstrap (tracking lost, a new map started).
+    /// The maps tracking lost (a new map started after each), with their outputs.
+    finished: Vec<MapOutputs>,
+    /// Maps lost after their bootstrap (tracking lost, a new map started): the number of the
+    /// current map (`slam::map::FIRST_MAP` the first).
     lost_maps: usize,
+    /// Frames tracked in a map other than the first, which have no pose in the first map's
+    /// world: `(position in the record, map, camera_from_world, state)`, kept for the map
+    /// written if it is theirs.
+    off_first: Vec<(usize, usize, Se3, TrackingState)>,
     /// Frames refused in a row by the corner tracks.
     refused: usize,
     /// The current map's keyframe images (the templates of the guided search).
@@ -559,6 +566,7 @@ impl MonoSystem {
             reports: Vec::new(),
             finished: Vec::new(),
             lost_maps: 0,
+            off_first: Vec::new(),
             refused: 0,
             images: Default::default(),
             bootstrap_first: None,
@@ -694,9 +702,10 @@ impl MonoSystem {
     fn restart(&mut self, why: String) {
         if let Some(explorer) = self.explorer.take() {
             if !explorer.map().keyframes.is_empty() {
+                let outputs = self.close_map(explorer);
+                self.finished.push(outputs);
                 self.lost_maps += 1;
             }
-            self.finished.extend(explorer.frame_poses());
             self.warnings.push(why);
         }
         self.tracks.reset();
@@ -720,21 +729,157 @@ impl MonoSystem {
         self.relative.clear();
     }
 
-    fn push(&mut self, report: FrameReport, frame: &data::sequence::Frame, pose: Option<Se3>) {
+    /// Records a frame's pose and state and its report; returns the report as recorded.
+    ///
+    /// Only a pose in the first map is a pose in the world: a map started after tracking was
+    /// lost has a frame and a scale of its own, and nothing joins it to the first (there is no
+    /// relocalisation or merge for a monocular camera yet). Such a frame's state says so and
+    /// its pose is kept, for the outputs if its map is the one written
+    /// ([`RunResult::world_map`]).
+    fn push(
+        &mut self,
+        mut report: FrameReport,
+        frame: &data::sequence::Frame,
+        pose: Option<Se3>,
+    ) -> FrameReport {
         if let (Some(pose), Some(explorer)) = (pose, &self.explorer)
             && let Some(last) = explorer.map().keyframe_ids().last()
         {
             let rel = pose.compose(&explorer.map().rigid_pose(last).inverse());
             self.relative.push((self.record.frames.len(), last, rel));
         }
+        let map = self.lost_maps;
+        let world_pose = match pose {
+            Some(pose) if map != FIRST_MAP => {
+                self.off_first
+                    .push((self.record.frames.len(), map, pose, report.state.clone()));
+                report.state = TrackingState::Weak(format!(
+                    "tracked in map {map}, started after tracking was lost: a monocular map of \
+                     its own frame and scale, no pose in the first map's world"
+                ));
+                None
+            }
+            pose => pose,
+        };
         self.record.frames.push(FrameRecord {
             index: frame.index,
             timestamp: frame.timestamp,
-            world_from_camera: pose.map(|t| t.inverse()),
+            world_from_camera: world_pose.map(|t| t.inverse()),
             state: report.state.clone(),
         });
         self.record.timings.record("frame: total", report.time);
-        self.reports.push(report);
+        self.reports.push(report.clone());
+        report
+    }
+
+    /// The outputs of a map (the current one at the end of the run, or one tracking lost): its
+    /// frames' poses after the loops' correction, its keyframes and points, its graph. The
+    /// loops are corrected in `mono.loop_correction`'s group (the other one as an
+    /// alternative trajectory, unless corrected live).
+    fn close_map(&mut self, explorer: MonoExplorer) -> MapOutputs {
+        let timestamp: std::collections::HashMap<usize, f64> = self
+            .record
+            .frames
+            .iter()
+            .map(|f| (f.index, f.timestamp))
+            .collect();
+        let mut trajectories: Vec<(&'static str, Vec<(usize, Se3)>)> = Vec::new();
+        let poses = explorer.frame_poses();
+        let map = explorer.into_map();
+        let mut edges: Vec<LoopEdge> = self
+            .loops
+            .as_ref()
+            .map(|l| loop_edges(&l.edges))
+            .unwrap_or_default();
+        let loops_found = !edges.is_empty();
+        edges.extend(covisibility_edges(&map.graph, self.config.mapping.theta));
+        let (primary, other) = correction_groups(&self.config.mono.loop_correction);
+        // Corrected live, the map holds the primary group's correction already; the other
+        // group's would start from it, so it is not written (run again with the other
+        // `mono.loop_correction` for the thesis's comparison).
+        let groups = match (!loops_found, self.config.mono.correct_live) {
+            (true, _) => vec![],
+            (false, true) => vec![primary],
+            (false, false) => vec![primary, other],
+        };
+        let keyframe_of: std::collections::HashMap<usize, KeyframeId> = map
+            .keyframe_ids()
+            .map(|k| (map.keyframe(k).frame, k))
+            .collect();
+        let relative: std::collections::HashMap<usize, (KeyframeId, Se3)> = self
+            .relative
+            .iter()
+            .map(|&(i, k, rel)| (self.record.frames[i].index, (k, rel)))
+            .collect();
+        // Every frame of the map in a corrected graph: a keyframe as corrected, another
+        // frame relative to its keyframe.
+        let reexpress = |g: &SlamGraph<2>| -> Vec<(usize, Se3)> {
+            poses
+                .iter()
+                .map(|&(f, tracked)| {
+                    let pose = match (keyframe_of.get(&f), relative.get(&f)) {
+                        (Some(&k), _) => g.pose(k).ok().map(|s| rigid_from_similarity(&s)),
+                        (None, Some(&(k, rel))) => g
+                            .pose(k)
+                            .ok()
+                            .map(|s| rigid_from_similarity(&Sim3::from_se3(&rel).compose(&s))),
+                        _ => None,
+                    };
+                    (f, pose.unwrap_or(tracked))
+                })
+                .collect()
+        };
+        let mut corrected_graph = map.graph.clone();
+        for (i, &group) in groups.iter().enumerate() {
+            let mut g = map.graph.clone();
+            match correct_loops(&mut g, &edges, group) {
+                Ok(()) => {
+                    let name = match group {
+                        CorrectionGroup::Sim3 => "trajectory_final_sim3",
+                        CorrectionGroup::Se3 => "trajectory_final_se3",
+                    };
+                    trajectories.push((name, reexpress(&g)));
+                    if i == 0 {
+                        corrected_graph = g;
+                    }
+                }
+                Err(e) => self
+                    .warnings
+                    .push(format!("loop correction in {group:?}: {e}")),
+            }
+        }
+        if trajectories.is_empty() {
+            trajectories.push(("trajectory_final", reexpress(&map.graph)));
+        }
+        let graph = corrected_graph;
+        let keyframes = map
+            .keyframe_ids()
+            .filter_map(|k| {
+                let frame = map.keyframe(k).frame;
+                Some(KeyframeRecord {
+                    id: k.index(),
+                    frame_index: frame,
+                    timestamp: timestamp.get(&frame).copied().unwrap_or(f64::NAN),
+                    world_from_camera: rigid_from_similarity(&graph.pose(k).ok()?).inverse(),
+                })
+            })
+            .collect();
+        let points = graph
+            .points()
+            .filter_map(|(p, _)| {
+                Some(MapPoint {
+                    position: graph.point_world(p).ok()?,
+                    colour: None,
+                })
+            })
+            .collect();
+        MapOutputs {
+            map: self.lost_maps,
+            trajectories,
+            keyframes,
+            points,
+            graph,
+        }
     }
 }
 
@@ -986,8 +1131,7 @@ impl LiveRun<2> for MonoSystem {
                     time: start.elapsed(),
                     time_tracking: start.elapsed(),
                 };
-                self.push(report.clone(), &frame, None);
-                return Ok(report);
+                return Ok(self.push(report, &frame, None));
             }
         };
         let t = Instant::now();
@@ -1100,8 +1244,7 @@ impl LiveRun<2> for MonoSystem {
             time_tracking,
         };
         self.record.timings.record("track: total", time_tracking);
-        self.push(report.clone(), &frame, pose);
-        Ok(report)
+        Ok(self.push(report, &frame, pose))
     }
 
     fn skip_frame(&mut self, index: usize, timestamp: f64, reason: String) {
@@ -1136,104 +1279,100 @@ impl LiveRun<2> for MonoSystem {
             .iter()
             .map(|f| (f.index, f.timestamp))
             .collect();
+        let mut maps = std::mem::take(&mut self.finished);
+        if let Some(explorer) = self.explorer.take()
+            && !explorer.map().keyframes.is_empty()
+        {
+            let outputs = self.close_map(explorer);
+            maps.push(outputs);
+        }
         let mut warnings = std::mem::take(&mut self.warnings);
-        // Earlier maps' frames as they were left; the current map's after its loops'
-        // correction (in `mono.loop_correction`'s group, the other one as an alternative).
-        let earlier = std::mem::take(&mut self.finished);
-        let mut trajectories: Vec<(&'static str, Vec<(usize, Se3)>)> = Vec::new();
-        let mut graph = SlamGraph::default();
-        if let Some(explorer) = self.explorer.take() {
-            let poses = explorer.frame_poses();
-            let map = explorer.into_map();
-            let mut edges: Vec<LoopEdge> = self
-                .loops
-                .as_ref()
-                .map(|l| loop_edges(&l.edges))
-                .unwrap_or_default();
-            let loops_found = !edges.is_empty();
-            edges.extend(covisibility_edges(&map.graph, self.config.mapping.theta));
-            let (primary, other) = correction_groups(&self.config.mono.loop_correction);
-            // Corrected live, the map holds the primary group's correction already; the other
-            // group's would start from it, so it is not written (run again with the other
-            // `mono.loop_correction` for the thesis's comparison).
-            let groups = match (!loops_found, self.config.mono.correct_live) {
-                (true, _) => vec![],
-                (false, true) => vec![primary],
-                (false, false) => vec![primary, other],
-            };
-            let keyframe_of: std::collections::HashMap<usize, KeyframeId> = map
-                .keyframe_ids()
-                .map(|k| (map.keyframe(k).frame, k))
-                .collect();
-            let relative: std::collections::HashMap<usize, (KeyframeId, Se3)> = self
-                .relative
-                .iter()
-                .map(|&(i, k, rel)| (self.record.frames[i].index, (k, rel)))
-                .collect();
-            // Every frame of the map in a corrected graph: a keyframe as corrected, another
-            // frame relative to its keyframe.
-            let reexpress = |g: &SlamGraph<2>| -> Vec<(usize, Se3)> {
-                poses
-                    .iter()
-                    .map(|&(f, tracked)| {
-                        let pose = match (keyframe_of.get(&f), relative.get(&f)) {
-                            (Some(&k), _) => g.pose(k).ok().map(|s| rigid_from_similarity(&s)),
-                            (None, Some(&(k, rel))) => g
-                                .pose(k)
-                                .ok()
-                                .map(|s| rigid_from_similarity(&Sim3::from_se3(&rel).compose(&s))),
-                            _ => None,
-                        };
-                        (f, pose.unwrap_or(tracked))
-                    })
-                    .collect()
-            };
-            let mut corrected_graph = map.graph.clone();
-            for (i, &group) in groups.iter().enumerate() {
-                let mut g = map.graph.clone();
-                match correct_loops(&mut g, &edges, group) {
-                    Ok(()) => {
-                        let name = match group {
-                            CorrectionGroup::Sim3 => "trajectory_final_sim3",
-                            CorrectionGroup::Se3 => "trajectory_final_se3",
-                        };
-                        trajectories.push((name, reexpress(&g)));
-                        if i == 0 {
-                            corrected_graph = g;
-                        }
-                    }
-                    Err(e) => warnings.push(format!("loop correction in {group:?}: {e}")),
+        // The map written: the one with the most keyframes, the first on a tie (as the stereo
+        // and RGB-D system's, and ORB-SLAM3's biggest map). Another map's frames have no pose
+        // in its world: each map has its own frame and scale.
+        let world = maps
+            .iter()
+            .max_by(|a, b| {
+                a.keyframes
+                    .len()
+                    .cmp(&b.keyframes.len())
+                    .then(b.map.cmp(&a.map))
+            })
+            .map_or(FIRST_MAP, |m| m.map);
+        if world != FIRST_MAP {
+            let mut dropped = 0;
+            for f in &mut self.record.frames {
+                if f.world_from_camera.take().is_some() {
+                    dropped += 1;
+                    f.state = TrackingState::Weak(format!(
+                        "tracked in the first map, which is not the map written (map {world} holds more keyframes): no pose in the world"
+                    ));
                 }
             }
-            if trajectories.is_empty() {
-                trajectories.push(("trajectory_final", reexpress(&map.graph)));
+            for (i, map, pose, state) in &self.off_first {
+                if *map == world {
+                    let f = &mut self.record.frames[*i];
+                    f.world_from_camera = Some(pose.inverse());
+                    f.state = state.clone();
+                }
             }
-            graph = corrected_graph;
-            self.record.keyframes = map
-                .keyframe_ids()
-                .filter_map(|k| {
-                    let frame = map.keyframe(k).frame;
-                    Some(KeyframeRecord {
-                        id: k.index(),
-                        frame_index: frame,
-                        timestamp: timestamp.get(&frame).copied().unwrap_or(f64::NAN),
-                        world_from_camera: rigid_from_similarity(&graph.pose(k).ok()?).inverse(),
-                    })
-                })
-                .collect();
-            self.record.points = graph
-                .points()
-                .filter_map(|(p, _)| {
-                    Some(MapPoint {
-                        position: graph.point_world(p).ok()?,
-                        colour: None,
-                    })
-                })
-                .collect();
+            let keyframes_of = |m: usize| {
+                maps.iter()
+                    .find(|o| o.map == m)
+                    .map_or(0, |o| o.keyframes.len())
+            };
+            warnings.push(format!(
+                "the map written is map {world}, which holds more keyframes ({}) than the first \
+                 ({}): the first map's {dropped} frames have no pose in the trajectories",
+                keyframes_of(world),
+                keyframes_of(FIRST_MAP)
+            ));
         }
+        // The maps started after a loss: where, how long after the last pose, how many frames.
+        let mut new_maps = Vec::new();
+        // Each map starts after the last frame of the one before (maps follow one another).
+        for pair in maps.windows(2) {
+            let (before, m) = (&pair[0], &pair[1]);
+            let (Some(&(first, _)), Some(&(last, _))) =
+                (m.trajectories[0].1.first(), before.trajectories[0].1.last())
+            else {
+                continue;
+            };
+            let at = |f: usize| timestamp.get(&f).copied().unwrap_or(f64::NAN);
+            new_maps.push(NewMap {
+                frame: first,
+                lost_for: at(first) - at(last),
+                map: m.map,
+                joined: m.map == world,
+                frames: self.off_first.iter().filter(|o| o.1 == m.map).count(),
+            });
+        }
+        for m in &new_maps {
+            let NewMap {
+                frame,
+                lost_for,
+                map,
+                frames,
+                ..
+            } = m;
+            warnings.push(if *map == world {
+                format!(
+                    "frame {frame}: tracking lost {lost_for:.1} s before; a new map (map {map}) \
+                     was initialised there: the map written"
+                )
+            } else {
+                format!(
+                    "frame {frame}: tracking lost {lost_for:.1} s before; a new map (map {map}) \
+                     was initialised there, with a frame and a scale of its own (a monocular map \
+                     is not relocalised or merged yet): its {frames} frames have no pose in the \
+                     trajectories, and its keyframes and points are not in the map written"
+                )
+            });
+        }
+        let written = maps.into_iter().find(|m| m.map == world);
         let to_trajectory = |poses: &[(usize, Se3)]| {
             let mut t = Trajectory::default();
-            for (frame, camera_from_world) in earlier.iter().chain(poses) {
+            for (frame, camera_from_world) in poses {
                 if let Some(&ts) = timestamp.get(frame) {
                     t.timestamps.push(ts);
                     t.world_from_body.push(camera_from_world.inverse());
@@ -1241,12 +1380,22 @@ impl LiveRun<2> for MonoSystem {
             }
             t
         };
-        let final_trajectory = to_trajectory(trajectories.first().map_or(&[][..], |t| &t.1));
-        let alternatives = trajectories
-            .iter()
-            .skip(1)
-            .map(|(name, poses)| (*name, to_trajectory(poses)))
-            .collect();
+        let (final_trajectory, alternatives, graph) = match written {
+            Some(m) => {
+                self.record.keyframes = m.keyframes;
+                self.record.points = m.points;
+                (
+                    to_trajectory(&m.trajectories[0].1),
+                    m.trajectories
+                        .iter()
+                        .skip(1)
+                        .map(|(name, poses)| (*name, to_trajectory(poses)))
+                        .collect(),
+                    m.graph,
+                )
+            }
+            None => (Trajectory::default(), Vec::new(), SlamGraph::default()),
+        };
         if self.rejected_loops > 0 {
             warnings.push(format!(
                 "{} loops found by appearance were refused: each needed more than {:.0} % of \
@@ -1255,22 +1404,15 @@ impl LiveRun<2> for MonoSystem {
                 MAX_DRIFT_FRACTION * 100.0
             ));
         }
-        if self.lost_maps > 0 {
-            warnings.push(format!(
-                "tracking lost its map {} times and started a new one; the outputs hold the \
-                 last map, every frame's pose in the map it was tracked in",
-                self.lost_maps
-            ));
-        }
         Ok(RunResult {
             record: self.record,
             final_trajectory,
             frames: self.reports,
             loops: self.events,
-            // The monocular system starts a new map when lost (no relocalisation yet).
+            // No relocalisation for a monocular camera yet: a new map after each loss.
             relocalisations: Vec::new(),
-            new_maps: Vec::new(),
-            world_map: slam::map::FIRST_MAP,
+            new_maps,
+            world_map: world,
             refused_loops: Vec::new(),
             optimisations: Vec::new(),
             graph,
@@ -1279,6 +1421,19 @@ impl LiveRun<2> for MonoSystem {
             alternatives,
         })
     }
+}
+
+/// A monocular map's outputs ([`MonoSystem::close_map`]).
+struct MapOutputs {
+    /// Its number (`slam::map::FIRST_MAP` the first).
+    map: usize,
+    /// Its frames' poses `(frame, camera_from_world)` after the loops' correction, by file
+    /// stem: the final trajectory first, then the alternatives.
+    trajectories: Vec<(&'static str, Vec<(usize, Se3)>)>,
+    keyframes: Vec<KeyframeRecord>,
+    points: Vec<MapPoint>,
+    /// The corrected graph.
+    graph: SlamGraph<2>,
 }
 
 #[cfg(test)]

@@ -227,12 +227,34 @@ fn gaps_black_textureless_and_unreadable_frames_are_reported_and_the_run_goes_on
     for k in textureless.clone() {
         assert!(matches!(state(k), Lost(_)), "frame {k}: {:?}", state(k));
     }
-    assert!(
-        (textureless.end..260).any(|k| pose(k).is_some()),
+    // The new map has a frame and a scale of its own: the outputs hold one map, the one with
+    // the more keyframes (here the first, from frame ~50 to 200, against the new one's 45
+    // frames), and the new map's frames say where they were tracked.
+    assert_eq!(r.new_maps.len(), 1, "{:?}", r.new_maps);
+    let m = &r.new_maps[0];
+    assert!(m.frame >= textureless.end && m.map == 1, "{m:?}");
+    assert_eq!(r.world_map, slam::map::FIRST_MAP);
+    assert!(!m.joined && m.frames > 0, "{m:?}");
+    use data::output::TrackingState::Weak;
+    let in_new_map: Vec<usize> = (m.frame..260)
+        .filter(|&k| matches!(state(k), Weak(w) if w.contains("tracked in map 1")))
+        .collect();
+    assert_eq!(
+        in_new_map.len(),
+        m.frames,
         "initialised again after the textureless stretch"
     );
+    assert!(in_new_map.iter().all(|&k| pose(k).is_none()));
+    let last_first_map = 200.0 / 30.0;
     assert!(
-        r.warnings.iter().any(|w| w.contains("new map")),
+        r.final_trajectory
+            .timestamps
+            .iter()
+            .all(|&t| t < last_first_map),
+        "the final trajectory holds the first map's frames only"
+    );
+    assert!(
+        r.warnings.iter().any(|w| w.contains("new map (map 1)")),
         "{:?}",
         r.warnings
     );
