@@ -440,9 +440,12 @@ pub struct OptimiserConfig {
     pub outer: usize,
     /// Levenberg-Marquardt iterations per optimisation (thesis §6.5.1: 3).
     pub iterations: usize,
-    /// Levenberg-Marquardt iterations of the bundle adjustment over every keyframe and point
-    /// when a stereo or RGB-D run ends (the trajectory after the run is every frame relative
-    /// to its keyframe after it); 0: none, the last double window is the final state. The windows leave the
+    /// Levenberg-Marquardt iterations of each of the two optimisations that end a stereo or
+    /// RGB-D run, the double window with every keyframe in the outer window (the pose graph of
+    /// the whole map), then the bundle adjustment over every keyframe and point, both from the
+    /// poses as they are (`slam::dwo::DoubleWindowOptimiser::finishing`; the trajectory after
+    /// the run is every frame relative to its keyframe after them); 0: none, the last double
+    /// window is the final state. The windows leave the
     /// map locally exact but, where a lap's metric loops pull old keyframes into the inner
     /// window, they move those towards the newer (drifted) view instead of spreading the
     /// correction (rendered courtyard seed 3: first-lap keyframes 1.5–2.5 cm off against 0.5

@@ -1127,11 +1127,17 @@ impl LiveSystem {
             && let Some(optimiser) = &self.optimiser
             && self.graph.read().num_keyframes() >= 2
         {
-            let mut full = DoubleWindowOptimiser::new(DwoParams {
-                inner: usize::MAX,
-                iterations: final_iterations,
-                ..optimiser.params.clone()
-            });
+            let [mut global, mut full] = DoubleWindowOptimiser::finishing(
+                DwoParams {
+                    iterations: final_iterations,
+                    ..optimiser.params.clone()
+                },
+                &self.graph.read(),
+            );
+            let stats = global.optimise_shared(&self.graph, self.sensor.camera())?;
+            self.record
+                .timings
+                .record("optimise: final pose graph (gDWO)", stats.total());
             let stats = full.optimise_shared(&self.graph, self.sensor.camera())?;
             self.record
                 .timings
