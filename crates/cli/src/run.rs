@@ -290,7 +290,9 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         dense.depth_noise = config.depth_noise_for(&camera, stereo);
         (camera.pinhole, dense)
     };
-    let mut system = LiveSystem::new(&sensor, config, settings.mode, &name)?;
+    // The keyframes' depth images only serve the dense model.
+    let mut system =
+        LiveSystem::new(&sensor, config, settings.mode, &name)?.keyframe_depth(settings.dense_ply);
     if loops.enabled {
         system = system.with_loop_closure(vocabulary(&loops)?)?;
     }

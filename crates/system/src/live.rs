@@ -325,6 +325,8 @@ pub struct LiveSystem {
     /// The loop closer's place-recognition database (and its configuration), where a lost
     /// frame is looked for.
     relocaliser: Option<(Arc<RwLock<PlaceRecognition>>, PlaceRecognitionConfig)>,
+    /// Keep each keyframe's depth image in the store ([`LiveSystem::keyframe_depth`]).
+    keep_depth: bool,
     relocalisations: Vec<Relocalisation>,
     /// The timestamp of the first of the lost frames up to now (`None` while tracked).
     lost_since: Option<f64>,
@@ -409,6 +411,7 @@ impl LiveSystem {
             appearance_loops: Arc::new(Mutex::new(Vec::new())),
             loop_queue_full: 0,
             relocaliser: None,
+            keep_depth: true,
             relocalisations: Vec::new(),
             lost_since: None,
             new_maps: Vec::new(),
@@ -429,6 +432,16 @@ impl LiveSystem {
             loops: Vec::new(),
             config,
         })
+    }
+
+    /// Whether the keyframe store keeps each keyframe's depth image (the default): only the
+    /// dense model fuses it (`crate::dense_model::fuse`, `dwslam run --dense-ply`), and at 4
+    /// bytes a pixel it is half of what a keyframe's images take (a 640×480 RGB-D keyframe:
+    /// 1.2 of 2.4 MB), which a long exploration holds for every keyframe. The grey image (the
+    /// search's templates) and the colour (the map points' colours) stay.
+    pub fn keyframe_depth(mut self, keep: bool) -> Self {
+        self.keep_depth = keep;
+        self
     }
 
     /// Closes large loops by appearance with `vocabulary` (see [`crate::loops`]), unless the
@@ -946,7 +959,10 @@ impl LiveSystem {
             &mut self.next_track,
         );
         association.tracked_against = tracked_against;
-        let images = association.images();
+        let mut images = association.images();
+        if !self.keep_depth {
+            images.depth = None;
+        }
         // The stages of the keyframe pipeline under the graph's write lock (they take a few
         // milliseconds; the optimisation is not among them).
         let (report, map) = {

@@ -23,11 +23,24 @@ fn run(path: &Path, frames: Vec<Frame>, mode: Mode) -> RunResult {
 
 /// [`run`] with `config`.
 fn run_with(path: &Path, frames: Vec<Frame>, mode: Mode, config: SystemConfig) -> RunResult {
+    run_keeping(path, frames, mode, config, true)
+}
+
+/// [`run_with`], the keyframes' depth images kept in the store or not
+/// (`LiveSystem::keyframe_depth`).
+fn run_keeping(
+    path: &Path,
+    frames: Vec<Frame>,
+    mode: Mode,
+    config: SystemConfig,
+    keyframe_depth: bool,
+) -> RunResult {
     let sequence = Sequence::open(path, &OpenOptions::default()).unwrap();
     let sensor = sequence.info().camera;
     let vocabulary = std::sync::Arc::new(default_vocabulary().unwrap());
     let mut system = LiveSystem::new(&sensor, config, mode, "test")
         .unwrap()
+        .keyframe_depth(keyframe_depth)
         .with_loop_closure(vocabulary)
         .unwrap();
     for f in frames {
@@ -82,7 +95,17 @@ fn deterministic_runs_are_identical_and_every_frame_is_tracked() {
     let Some(path) = seven_scenes() else { return };
     let frames = read(&path, &depth_frames(), 0..120);
     let a = run(&path, frames.clone(), Mode::Deterministic);
-    let b = run(&path, frames, Mode::Deterministic);
+    // The second run without the keyframes' depth images (`dwslam run` without --dense-ply):
+    // only the dense model reads them, so the run is the same.
+    let b = run_keeping(
+        &path,
+        frames,
+        Mode::Deterministic,
+        SystemConfig::default(),
+        false,
+    );
+    assert!(a.keyframes.iter().all(|(_, i)| i.depth.is_some()));
+    assert!(!b.keyframes.is_empty() && b.keyframes.iter().all(|(_, i)| i.depth.is_none()));
     assert_eq!(a.record.frames.len(), 120);
     for (x, y) in a.record.frames.iter().zip(&b.record.frames) {
         assert_eq!(x.state, y.state, "frame {}", x.index);
