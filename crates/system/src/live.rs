@@ -132,8 +132,8 @@ pub struct Relocalisation {
 /// (`crate::mono`), which nothing joins to another.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NewMap {
-    /// The frame it started at (its index in the sequence; monocular: its first frame with a
-    /// pose).
+    /// The frame it started at (its index in the sequence; monocular: the first frame of its
+    /// bootstrap).
     pub frame: usize,
     /// Seconds the camera had been lost (monocular: since the last pose in the map before).
     pub lost_for: f64,
@@ -936,7 +936,8 @@ impl LiveSystem {
     /// pipeline's stages, then the optimisation (inline, or by waking its thread). With
     /// `new_map`, the first keyframe of a new map (`slam::map::SlamGraph::start_map`), started
     /// under the same write lock, so that no other thread sees the new map without it (nor the
-    /// graph without a reference keyframe). Returns the keyframe and the map it was made in.
+    /// graph without a reference keyframe, unless the pipeline fails, which stops the run).
+    /// Returns the keyframe and the map it was made in.
     fn make_keyframe(
         &mut self,
         frame: &Arc<FrameData>,
@@ -1055,7 +1056,13 @@ impl LiveSystem {
         }
         match (&mut self.optimiser, &self.worker) {
             (Some(optimiser), _) => {
-                let stats = optimiser.optimise_shared(&self.graph, self.sensor.camera())?;
+                let stats = match optimiser.optimise_shared(&self.graph, self.sensor.camera()) {
+                    Ok(stats) => stats,
+                    // A new map whose first keyframe failed (the run then stops): nothing to
+                    // optimise around, and the outputs are still written.
+                    Err(DwoError::NoReference) => return Ok(()),
+                    Err(e) => return Err(e.into()),
+                };
                 self.record
                     .timings
                     .record("optimise: double window", stats.total());
@@ -1131,17 +1138,55 @@ impl LiveSystem {
             self.optimiser = Some(optimiser);
         }
         self.optimise()?;
-        // The bundle adjustment over every keyframe and point (the double window with an inner
-        // window of everything), unless the run was interrupted (Ctrl-C stops promptly). On
-        // eleven sequences (2026-12-03, 5 iterations) the trajectory after the run got better
-        // or stayed: rendered courtyard seeds 1–3 0.61 / 0.80 / 1.19 → 0.51 / 0.65 / 0.75 cm,
-        // room stereo 0.12 / 0.12 / 0.14 → 0.09 cm, room RGB-D 0.10 → 0.08 cm, 7-Scenes 4.63 →
-        // 4.57 cm, KITTI 5.29 → 5.27 cm, EuRoC 0.06 cm; 0.03–0.9 s.
+        // The world: the map with the most keyframes, the first on a tie (ORB-SLAM3 saves its
+        // biggest map). The first unless a camera lost early and never found again went on in
+        // a new map for longer. Frames, keyframes and points of another map have no place in it
+        // (only the motion model's guess).
+        let mut keyframes_in = std::collections::BTreeMap::<usize, usize>::new();
+        {
+            let g = self.graph.read();
+            for (k, _) in g.keyframes() {
+                if let Ok(m) = g.map_of(k) {
+                    *keyframes_in.entry(m).or_default() += 1;
+                }
+            }
+        }
+        let world = keyframes_in
+            .iter()
+            .max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))
+            .map_or(FIRST_MAP, |(m, _)| *m);
+        // The optimisations that end the run, around the map written: its newest keyframe the
+        // reference (the windows grow from the reference through the edges, which do not join
+        // maps never merged).
+        {
+            let mut g = self.graph.write();
+            let newest = g
+                .keyframes()
+                .map(|(k, _)| k)
+                .filter(|&k| g.map_of(k) == Ok(world))
+                .last();
+            if let Some(k) = newest
+                && g.reference().is_none_or(|r| g.map_of(r) != Ok(world))
+            {
+                let _ = g.set_reference(k);
+            }
+        }
+        // Then the double window with every keyframe in its outer window (the pose graph of the
+        // whole map) and the bundle adjustment over every keyframe and point, both from the
+        // poses as they are (`DoubleWindowOptimiser::finishing`), unless the run was
+        // interrupted (Ctrl-C stops promptly). The bundle adjustment alone, on eleven sequences
+        // (2026-12-03, 5 iterations): the trajectory after the run got better or stayed —
+        // rendered courtyard seeds 1–3 0.61 / 0.80 / 1.19 → 0.51 / 0.65 / 0.75 cm, room stereo
+        // 0.12 / 0.12 / 0.14 → 0.09 cm, room RGB-D 0.10 → 0.08 cm, 7-Scenes 4.63 → 4.57 cm,
+        // KITTI 5.29 → 5.27 cm, EuRoC 0.06 cm; 0.03–0.9 s. The pose graph before it and the
+        // start from the poses: see `finishing` (the rendered building 0.61 → 0.55 cm, and no
+        // longer broken with small windows).
         let final_iterations = self.config.optimiser.final_iterations;
         if !interrupted
             && final_iterations > 0
             && let Some(optimiser) = &self.optimiser
             && self.graph.read().num_keyframes() >= 2
+            && self.graph.read().reference().is_some()
         {
             let [mut global, mut full] = DoubleWindowOptimiser::finishing(
                 DwoParams {
@@ -1167,28 +1212,16 @@ impl LiveSystem {
         );
         warnings.extend(refused);
         let graph = self.graph.snapshot();
-        // The world: the map with the most keyframes, the first on a tie (ORB-SLAM3 saves its
-        // biggest map). The first unless a camera lost early and never found again went on in
-        // a new map for longer. Frames, keyframes and points of another map have no place in it
-        // (only the motion model's guess).
-        let mut keyframes_in = std::collections::BTreeMap::<usize, usize>::new();
-        for (k, _) in graph.keyframes() {
-            if let Ok(m) = graph.map_of(k) {
-                *keyframes_in.entry(m).or_default() += 1;
-            }
-        }
-        let world = keyframes_in
-            .iter()
-            .max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))
-            .map_or(FIRST_MAP, |(m, _)| *m);
         if world != FIRST_MAP {
             let mut dropped = 0;
-            for f in &mut self.record.frames {
+            // The per-frame reports (frames.csv) say what the record says.
+            for (f, r) in self.record.frames.iter_mut().zip(&mut self.reports) {
                 if f.world_from_camera.take().is_some() {
                     dropped += 1;
                     f.state = TrackingState::Weak(format!(
                         "tracked in the first map, which is not the map written (map {world} holds more keyframes): no pose in the world"
                     ));
+                    r.state = f.state.clone();
                 }
             }
             for (i, map, pose, state) in &self.off_first {
@@ -1196,6 +1229,9 @@ impl LiveSystem {
                     let f = &mut self.record.frames[*i];
                     f.world_from_camera = Some(pose.rigid_part().inverse());
                     f.state = state.clone();
+                    if let Some(r) = self.reports.get_mut(*i) {
+                        r.state = state.clone();
+                    }
                 }
             }
             warnings.push(format!(

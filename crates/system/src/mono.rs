@@ -879,6 +879,7 @@ impl MonoSystem {
             keyframes,
             points,
             graph,
+            loops: std::mem::take(&mut self.events),
         }
     }
 }
@@ -1301,12 +1302,13 @@ impl LiveRun<2> for MonoSystem {
             .map_or(FIRST_MAP, |m| m.map);
         if world != FIRST_MAP {
             let mut dropped = 0;
-            for f in &mut self.record.frames {
+            for (f, r) in self.record.frames.iter_mut().zip(&mut self.reports) {
                 if f.world_from_camera.take().is_some() {
                     dropped += 1;
                     f.state = TrackingState::Weak(format!(
                         "tracked in the first map, which is not the map written (map {world} holds more keyframes): no pose in the world"
                     ));
+                    r.state = f.state.clone();
                 }
             }
             for (i, map, pose, state) in &self.off_first {
@@ -1314,6 +1316,7 @@ impl LiveRun<2> for MonoSystem {
                     let f = &mut self.record.frames[*i];
                     f.world_from_camera = Some(pose.inverse());
                     f.state = state.clone();
+                    self.reports[*i].state = state.clone();
                 }
             }
             let keyframes_of = |m: usize| {
@@ -1380,7 +1383,7 @@ impl LiveRun<2> for MonoSystem {
             }
             t
         };
-        let (final_trajectory, alternatives, graph) = match written {
+        let (final_trajectory, alternatives, graph, loops) = match written {
             Some(m) => {
                 self.record.keyframes = m.keyframes;
                 self.record.points = m.points;
@@ -1392,9 +1395,15 @@ impl LiveRun<2> for MonoSystem {
                         .map(|(name, poses)| (*name, to_trajectory(poses)))
                         .collect(),
                     m.graph,
+                    m.loops,
                 )
             }
-            None => (Trajectory::default(), Vec::new(), SlamGraph::default()),
+            None => (
+                Trajectory::default(),
+                Vec::new(),
+                SlamGraph::default(),
+                std::mem::take(&mut self.events),
+            ),
         };
         if self.rejected_loops > 0 {
             warnings.push(format!(
@@ -1408,7 +1417,7 @@ impl LiveRun<2> for MonoSystem {
             record: self.record,
             final_trajectory,
             frames: self.reports,
-            loops: self.events,
+            loops,
             // No relocalisation for a monocular camera yet: a new map after each loss.
             relocalisations: Vec::new(),
             new_maps,
@@ -1434,6 +1443,8 @@ struct MapOutputs {
     points: Vec<MapPoint>,
     /// The corrected graph.
     graph: SlamGraph<2>,
+    /// Its loops (keyframe ids are the map's own: each map numbers its keyframes anew).
+    loops: Vec<LoopEvent>,
 }
 
 #[cfg(test)]

@@ -551,6 +551,10 @@ fn a_camera_lost_early_for_good_writes_the_larger_new_map() {
     assert_eq!(r.new_maps.len(), 1, "{:?}", r.new_maps);
     let m = &r.new_maps[0];
     assert_eq!(r.world_map, m.map, "{:?}, {:?}", r.new_maps, r.warnings);
+    // The per-frame reports (frames.csv) say what the record says.
+    for (f, report) in r.record.frames.iter().zip(&r.frames) {
+        assert_eq!(f.state, report.state, "frame {}", f.index);
+    }
     assert!(
         r.warnings
             .iter()

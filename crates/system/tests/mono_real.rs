@@ -234,6 +234,9 @@ fn gaps_black_textureless_and_unreadable_frames_are_reported_and_the_run_goes_on
     let m = &r.new_maps[0];
     assert!(m.frame >= textureless.end && m.map == 1, "{m:?}");
     assert_eq!(r.world_map, slam::map::FIRST_MAP);
+    for (f, report) in r.record.frames.iter().zip(&r.frames) {
+        assert_eq!(f.state, report.state, "frame {}", f.index);
+    }
     assert!(!m.joined && m.frames > 0, "{m:?}");
     use data::output::TrackingState::Weak;
     let in_new_map: Vec<usize> = (m.frame..260)

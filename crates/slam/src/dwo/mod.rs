@@ -457,10 +457,12 @@ impl DoubleWindowOptimiser {
     }
 
     /// The optimisations that end a run, from the graph's poses as they are: the double
-    /// window with every keyframe of `graph` in the outer window (gDWO, thesis §6.5.1: the pose
-    /// graph over the whole map spreads what the windows left, a loop closed in a window that
-    /// the rest of the map did not follow), then a bundle adjustment of every keyframe and
-    /// point. `params.iterations` each.
+    /// window with every keyframe in the outer window (gDWO, thesis §6.5.1: the pose graph over
+    /// the whole map spreads what the windows left, a loop closed in a window that the rest of
+    /// the map did not follow), then a bundle adjustment of every keyframe and point.
+    /// `params.iterations` each. "Every keyframe": every one the edges join to the reference
+    /// (a map started after a loss and never merged is not among them; make a keyframe of the
+    /// map to optimise the reference).
     ///
     /// Neither re-initialises a keyframe along the spanning tree, nor re-computes an edge's
     /// relative pose: every keyframe counts as in the previous outer window. Re-initialisation

@@ -150,7 +150,9 @@ pub struct RigidEstimator<'a> {
 }
 
 impl<'a> RigidEstimator<'a> {
-    /// The problem of the correspondences `target_i ≈ T·source_i` with their covariances.
+    /// The problem of the correspondences `target_i ≈ T·source_i` with their covariances
+    /// (positive semi-definite, as `point_covariance`'s, for the bound of
+    /// [`RigidEstimator::spread`]; it is computed here, from the covariances given).
     pub fn new(
         target: &'a [Vector3<f64>],
         target_cov: &'a [Matrix3<f64>],
