@@ -1151,10 +1151,7 @@ impl LiveSystem {
                 }
             }
         }
-        let world = keyframes_in
-            .iter()
-            .max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))
-            .map_or(FIRST_MAP, |(m, _)| *m);
+        let world = largest_map(keyframes_in.iter().map(|(&m, &n)| (m, n)));
         // The optimisations that end the run, around the map written: its newest keyframe the
         // reference (the windows grow from the reference through the edges, which do not join
         // maps never merged).
@@ -1213,27 +1210,14 @@ impl LiveSystem {
         warnings.extend(refused);
         let graph = self.graph.snapshot();
         if world != FIRST_MAP {
-            let mut dropped = 0;
-            // The per-frame reports (frames.csv) say what the record says.
-            for (f, r) in self.record.frames.iter_mut().zip(&mut self.reports) {
-                if f.world_from_camera.take().is_some() {
-                    dropped += 1;
-                    f.state = TrackingState::Weak(format!(
-                        "tracked in the first map, which is not the map written (map {world} holds more keyframes): no pose in the world"
-                    ));
-                    r.state = f.state.clone();
-                }
-            }
-            for (i, map, pose, state) in &self.off_first {
-                if *map == world {
-                    let f = &mut self.record.frames[*i];
-                    f.world_from_camera = Some(pose.rigid_part().inverse());
-                    f.state = state.clone();
-                    if let Some(r) = self.reports.get_mut(*i) {
-                        r.state = state.clone();
-                    }
-                }
-            }
+            let dropped = write_map(
+                world,
+                &mut self.record.frames,
+                &mut self.reports,
+                self.off_first
+                    .iter()
+                    .map(|(i, m, pose, state)| (*i, *m, pose.rigid_part(), state)),
+            );
             warnings.push(format!(
                 "the map written is map {world}, which holds more keyframes ({}) than the first \
                  ({}), never joined to it: the first map's {dropped} frames have no pose in the \
@@ -1394,6 +1378,49 @@ fn refused_loop_warning(refused: &[RefusedLoop]) -> Option<String> {
         worst.allowed,
         worst.drift.path,
     ))
+}
+
+/// The map written: the one with the most keyframes of `(map, keyframes)`, the first on a
+/// tie (ORB-SLAM3 saves its biggest map); `FIRST_MAP` if there is none.
+pub(crate) fn largest_map(keyframes: impl IntoIterator<Item = (usize, usize)>) -> usize {
+    keyframes
+        .into_iter()
+        .max_by(|a, b| a.1.cmp(&b.1).then(b.0.cmp(&a.0)))
+        .map_or(FIRST_MAP, |(m, _)| m)
+}
+
+/// Makes the record (and the per-frame reports, which frames.csv writes) hold map `world`,
+/// not the first: the frames with a pose (the first map's) lose it, their state saying why,
+/// and the frames tracked in `world` (`(position in the record, map, camera_from_world,
+/// state)` of `off_first`, kept while they had no pose in the first map's world) get theirs.
+/// Returns how many frames lost their pose.
+pub(crate) fn write_map<'a>(
+    world: usize,
+    frames: &mut [FrameRecord],
+    reports: &mut [FrameReport],
+    off_first: impl Iterator<Item = (usize, usize, Se3, &'a TrackingState)>,
+) -> usize {
+    let mut dropped = 0;
+    for (f, r) in frames.iter_mut().zip(reports.iter_mut()) {
+        if f.world_from_camera.take().is_some() {
+            dropped += 1;
+            f.state = TrackingState::Weak(format!(
+                "tracked in the first map, which is not the map written (map {world} holds more keyframes): no pose in the world"
+            ));
+            r.state = f.state.clone();
+        }
+    }
+    for (i, map, pose, state) in off_first {
+        if map == world {
+            let f = &mut frames[i];
+            f.world_from_camera = Some(pose.inverse());
+            f.state = state.clone();
+            if let Some(r) = reports.get_mut(i) {
+                r.state = state.clone();
+            }
+        }
+    }
+    dropped
 }
 
 /// The optimisation thread: woken by each new keyframe, it optimises the shared graph; a result

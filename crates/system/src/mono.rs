@@ -28,7 +28,10 @@
 use crate::config::{MonoConfig, SystemConfig};
 use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
-use crate::live::{FrameReport, LiveRun, LoopEvent, NewMap, RunResult, SystemError, skipped_frame};
+use crate::live::{
+    FrameReport, LiveRun, LoopEvent, NewMap, RunResult, SystemError, largest_map, skipped_frame,
+    write_map,
+};
 use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
 use crate::search::{SearchPoint, SearchScratch, predict, relocate, search, view_angle};
 use crate::tracker::TrackerStats;
@@ -772,17 +775,21 @@ impl MonoSystem {
         report
     }
 
+    /// Every recorded frame's timestamp, by frame index.
+    fn timestamps(&self) -> std::collections::HashMap<usize, f64> {
+        self.record
+            .frames
+            .iter()
+            .map(|f| (f.index, f.timestamp))
+            .collect()
+    }
+
     /// The outputs of a map (the current one at the end of the run, or one tracking lost): its
     /// frames' poses after the loops' correction, its keyframes and points, its graph. The
     /// loops are corrected in `mono.loop_correction`'s group (the other one as an
     /// alternative trajectory, unless corrected live).
     fn close_map(&mut self, explorer: MonoExplorer) -> MapOutputs {
-        let timestamp: std::collections::HashMap<usize, f64> = self
-            .record
-            .frames
-            .iter()
-            .map(|f| (f.index, f.timestamp))
-            .collect();
+        let timestamp = self.timestamps();
         let mut trajectories: Vec<(&'static str, Vec<(usize, Se3)>)> = Vec::new();
         let poses = explorer.frame_poses();
         let map = explorer.into_map();
@@ -1274,12 +1281,7 @@ impl LiveRun<2> for MonoSystem {
 
     fn finish(mut self, interrupted: bool) -> Result<RunResult<2>, SystemError> {
         self.record.interrupted = interrupted;
-        let timestamp: std::collections::HashMap<usize, f64> = self
-            .record
-            .frames
-            .iter()
-            .map(|f| (f.index, f.timestamp))
-            .collect();
+        let timestamp = self.timestamps();
         let mut maps = std::mem::take(&mut self.finished);
         if let Some(explorer) = self.explorer.take()
             && !explorer.map().keyframes.is_empty()
@@ -1291,34 +1293,16 @@ impl LiveRun<2> for MonoSystem {
         // The map written: the one with the most keyframes, the first on a tie (as the stereo
         // and RGB-D system's, and ORB-SLAM3's biggest map). Another map's frames have no pose
         // in its world: each map has its own frame and scale.
-        let world = maps
-            .iter()
-            .max_by(|a, b| {
-                a.keyframes
-                    .len()
-                    .cmp(&b.keyframes.len())
-                    .then(b.map.cmp(&a.map))
-            })
-            .map_or(FIRST_MAP, |m| m.map);
+        let world = largest_map(maps.iter().map(|m| (m.map, m.keyframes.len())));
         if world != FIRST_MAP {
-            let mut dropped = 0;
-            for (f, r) in self.record.frames.iter_mut().zip(&mut self.reports) {
-                if f.world_from_camera.take().is_some() {
-                    dropped += 1;
-                    f.state = TrackingState::Weak(format!(
-                        "tracked in the first map, which is not the map written (map {world} holds more keyframes): no pose in the world"
-                    ));
-                    r.state = f.state.clone();
-                }
-            }
-            for (i, map, pose, state) in &self.off_first {
-                if *map == world {
-                    let f = &mut self.record.frames[*i];
-                    f.world_from_camera = Some(pose.inverse());
-                    f.state = state.clone();
-                    self.reports[*i].state = state.clone();
-                }
-            }
+            let dropped = write_map(
+                world,
+                &mut self.record.frames,
+                &mut self.reports,
+                self.off_first
+                    .iter()
+                    .map(|(i, m, pose, state)| (*i, *m, *pose, state)),
+            );
             let keyframes_of = |m: usize| {
                 maps.iter()
                     .find(|o| o.map == m)

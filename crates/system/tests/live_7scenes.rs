@@ -56,6 +56,19 @@ fn run_keeping(
     result
 }
 
+/// The ground truth (`truth` of a frame's record) and the live pose of every frame of a run
+/// that has one.
+fn posed(
+    r: &RunResult,
+    truth: impl Fn(&data::output::FrameRecord) -> lie::Se3,
+) -> (Vec<lie::Se3>, Vec<lie::Se3>) {
+    r.record
+        .frames
+        .iter()
+        .filter_map(|f| Some((truth(f), f.world_from_camera?)))
+        .unzip()
+}
+
 fn read(path: &Path, options: &OpenOptions, indices: impl Iterator<Item = usize>) -> Vec<Frame> {
     let sequence = Sequence::open(path, options).unwrap();
     indices
@@ -387,12 +400,7 @@ fn a_camera_kidnapped_to_an_unmapped_place_stays_lost_until_it_sees_the_map() {
         back.frame > *lost.last().unwrap() - 1,
         "{back:?}, lost {lost:?}"
     );
-    let (gt, est): (Vec<lie::Se3>, Vec<lie::Se3>) = r
-        .record
-        .frames
-        .iter()
-        .filter_map(|f| Some((truth[&f.index], f.world_from_camera?)))
-        .unzip();
+    let (gt, est) = posed(&r, |f| truth[&f.index]);
     assert!(est.len() + lost.len() == r.record.frames.len() && est.len() > 200);
     let live = ate_se3(&gt, &est);
     assert!(live < 0.05, "live ATE {} over {} frames", live, est.len());
@@ -510,17 +518,7 @@ fn a_camera_lost_in_an_unmapped_place_goes_on_in_a_new_map_merged_into_the_old()
     assert_eq!(t.timestamps.len(), n - lost.len());
     let final_ate = final_ate(&r);
     assert!(final_ate < 0.05, "final ATE {final_ate}");
-    let (gt, live): (Vec<lie::Se3>, Vec<lie::Se3>) = r
-        .record
-        .frames
-        .iter()
-        .filter_map(|f| {
-            Some((
-                truth[&((f.timestamp * 1e6).round() as u64)],
-                f.world_from_camera?,
-            ))
-        })
-        .unzip();
+    let (gt, live) = posed(&r, |f| truth[&((f.timestamp * 1e6).round() as u64)]);
     let live_ate = ate_se3(&gt, &live);
     assert!(live_ate < 0.05, "live ATE {live_ate}");
     println!(
@@ -578,12 +576,7 @@ fn a_camera_lost_early_for_good_writes_the_larger_new_map() {
         );
     }
     assert_eq!(m.frames, r.record.frames.len() - first);
-    let (gt, est): (Vec<lie::Se3>, Vec<lie::Se3>) = r
-        .record
-        .frames
-        .iter()
-        .filter_map(|f| Some((truth[&f.index], f.world_from_camera?)))
-        .unzip();
+    let (gt, est) = posed(&r, |f| truth[&f.index]);
     let live = ate_se3(&gt, &est);
     assert!(live < 0.05, "live ATE {live} over {}", est.len());
     assert_eq!(r.final_trajectory.timestamps.len(), est.len());
