@@ -504,7 +504,10 @@ fn drive<S: LiveRun<N>, const N: usize>(
                     |l| json!({"keyframe": l.keyframe.index(), "old": l.old.index(),
                 "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind, "scale": l.scale,
                 "correction_m": l.correction.map(|d| d.displacement),
-                "path_m": l.correction.map(|d| d.path)})
+                "path_m": l.correction.map(|d| d.path),
+                "ransac_inliers": l.evidence.map(|e| e.ransac_inliers),
+                "old_points_found": l.evidence.map(|e| e.old_points_found),
+                "old_points_predicted": l.evidence.map(|e| e.old_points_predicted)})
                 )
                 .collect::<Vec<_>>()
         ),

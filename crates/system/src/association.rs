@@ -138,9 +138,23 @@ impl GuidedSearch<'_> {
         points: impl IntoIterator<Item = PointId>,
         scratch: &mut SearchScratch,
     ) -> Vec<(PointId, Vector3<f64>)> {
+        self.run_counted(graph, camera_from_world, points, scratch)
+            .0
+    }
+
+    /// [`GuidedSearch::run`], with the number of points predicted visible (searched): how
+    /// much of what should be there was found.
+    pub fn run_counted(
+        &self,
+        graph: &SlamGraph<3>,
+        camera_from_world: &Se3,
+        points: impl IntoIterator<Item = PointId>,
+        scratch: &mut SearchScratch,
+    ) -> (Vec<(PointId, Vector3<f64>)>, usize) {
         let camera = *self.sensor.pinhole();
         let (w, h) = (self.frame.gray().width(), self.frame.gray().height());
         let mut found = Vec::new();
+        let mut predicted = 0;
         for p in points {
             let Some(point) = SearchPoint::from_graph(graph, p) else {
                 continue;
@@ -150,6 +164,7 @@ impl GuidedSearch<'_> {
             let Some(anchor) = self.store.get(point.anchor).filter(|_| visible) else {
                 continue;
             };
+            predicted += 1;
             let Some(u) = search(
                 &camera,
                 camera_from_world,
@@ -167,7 +182,7 @@ impl GuidedSearch<'_> {
                 found.push((p, z));
             }
         }
-        found
+        (found, predicted)
     }
 }
 

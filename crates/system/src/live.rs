@@ -109,6 +109,21 @@ pub struct LoopEvent {
     /// The correction an appearance loop made to the new keyframe, against the path since
     /// the old one (stereo and RGB-D).
     pub correction: Option<LoopDrift>,
+    /// What an appearance loop rests on (stereo and RGB-D).
+    pub evidence: Option<LoopEvidence>,
+}
+
+/// What an appearance loop of the stereo and RGB-D system rests on: a person reading the run
+/// tells a strong loop from a weak one by it (a place that only looks like another — repeated
+/// façades — gives a few RANSAC inliers and finds a few per cent of the old place's points).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoopEvidence {
+    /// Inliers of the 3-point RANSAC on the ORB matches (thesis eq. 6.9).
+    pub ransac_inliers: usize,
+    /// Old-place map points found by the guided matching at the pose the loop implies.
+    pub old_points_found: usize,
+    /// Old-place map points predicted visible there (searched).
+    pub old_points_predicted: usize,
 }
 
 /// A lost frame found again in the map by appearance ([`PlaceRecognition::relocalise`]) and
@@ -991,10 +1006,10 @@ impl LiveSystem {
             .unwrap_or_else(|e| e.into_inner())
             .insert(keyframe, images);
         for closure in &report.metric_loops {
-            self.loop_event(keyframe, closure.keyframe, "metric", None);
+            self.loop_event(keyframe, closure.keyframe, "metric", None, None);
         }
         if let Some(old) = report.appearance_loop {
-            self.loop_event(keyframe, old, "appearance", None);
+            self.loop_event(keyframe, old, "appearance", None, None);
         }
         self.close_large_loop(keyframe, frame);
         self.optimise()?;
@@ -1036,6 +1051,7 @@ impl LiveSystem {
         old: KeyframeId,
         kind: &'static str,
         correction: Option<LoopDrift>,
+        evidence: Option<LoopEvidence>,
     ) {
         let store = self.store.read().unwrap_or_else(|e| e.into_inner());
         let frame_of = |k: KeyframeId| store.get(k).map_or(usize::MAX, |i| i.frame_index);
@@ -1046,6 +1062,7 @@ impl LiveSystem {
             kind,
             scale: None,
             correction,
+            evidence,
         });
     }
 
@@ -1127,7 +1144,12 @@ impl LiveSystem {
             } else {
                 "appearance"
             };
-            self.loop_event(event.keyframe, event.old, kind, event.drift);
+            let evidence = LoopEvidence {
+                ransac_inliers: event.ransac_inliers,
+                old_points_found: event.map_matches,
+                old_points_predicted: event.map_predicted,
+            };
+            self.loop_event(event.keyframe, event.old, kind, event.drift, Some(evidence));
         }
         if let Some(worker) = self.worker.take() {
             drop(worker.wake);

@@ -65,6 +65,10 @@ pub struct AppearanceLoop {
     pub ransac_inliers: usize,
     /// Old map points found in the new keyframe by the guided matching.
     pub map_matches: usize,
+    /// Old map points predicted visible in the new keyframe at the pose the loop implies
+    /// (searched): a true revisit finds a good part of them, a place that only looks alike
+    /// (repeated façades) a few per cent.
+    pub map_predicted: usize,
     /// The correction the loop made to the new keyframe, against the path since the old one.
     pub drift: Option<LoopDrift>,
     /// The loop joined two maps (the new keyframe's, started after a loss, moved onto the
@@ -203,7 +207,7 @@ impl LoopCloser {
             self.map_matches(&g, &store, job, &candidate)
         };
         self.timings.record("loop: guided matching", t.elapsed());
-        let Some(place) = place else {
+        let Some((place, map_predicted)) = place else {
             return Ok(None);
         };
         let t = Instant::now();
@@ -218,6 +222,7 @@ impl LoopCloser {
                 old,
                 ransac_inliers: candidate.ransac_inliers,
                 map_matches,
+                map_predicted,
                 drift,
                 merged: None,
             }),
@@ -230,6 +235,7 @@ impl LoopCloser {
                 old,
                 ransac_inliers: candidate.ransac_inliers,
                 map_matches,
+                map_predicted,
                 drift: None,
                 merged: Some((keyframes, displacement)),
             }),
@@ -241,14 +247,15 @@ impl LoopCloser {
         })
     }
 
-    /// The old place's map points found in the new keyframe at the pose the loop implies.
+    /// The old place's map points found in the new keyframe at the pose the loop implies,
+    /// and how many were predicted visible there.
     fn map_matches(
         &mut self,
         graph: &SlamGraph<3>,
         store: &KeyframeStore,
         job: &LoopJob,
         candidate: &LoopCandidate,
-    ) -> Option<AppearanceMatch<3>> {
+    ) -> Option<(AppearanceMatch<3>, usize)> {
         let old_pose = graph.pose(candidate.old).ok()?;
         let implied = candidate.query_from_old.compose(&old_pose).rigid_part();
         let own = graph.keyframe(job.keyframe)?.observations();
@@ -259,7 +266,7 @@ impl LoopCloser {
             .into_iter()
             .filter(|p| !own.contains_key(p))
             .collect();
-        let found = GuidedSearch {
+        let (found, predicted) = GuidedSearch {
             frame: &job.frame,
             store,
             sensor: &self.sensor,
@@ -268,7 +275,7 @@ impl LoopCloser {
             max_view_angle: self.max_view_angle,
             min_disparity: self.mapper.config().min_disparity,
         }
-        .run(graph, &implied, points, &mut self.scratch);
+        .run_counted(graph, &implied, points, &mut self.scratch);
         // The new keyframe's own point at a found pixel, if it has one there (then its
         // position, not the measurement's depth, enters the alignment).
         let same_pixel = 1.5f64;
@@ -282,10 +289,13 @@ impl LoopCloser {
                 (p, z, here)
             })
             .collect();
-        Some(AppearanceMatch {
-            old: candidate.old,
-            correspondences,
-        })
+        Some((
+            AppearanceMatch {
+                old: candidate.old,
+                correspondences,
+            },
+            predicted,
+        ))
     }
 }
 

@@ -667,6 +667,7 @@ impl MonoSystem {
                         kind: "appearance",
                         scale: Some(d.current_from_old.scale()),
                         correction: None,
+                        evidence: None,
                     });
                 }
             }
