@@ -21,7 +21,7 @@ use crate::association::KeyframeAssociation;
 use crate::config::SystemConfig;
 use crate::frame::{FrameData, FrameError, SensorFrontEnd, pixel_depth};
 use crate::keyframes::{KeyframeReason, KeyframeStore, keyframe_reason, nearest_keyframe};
-use crate::loops::{AppearanceLoop, LoopCloser, LoopJob};
+use crate::loops::{AppearanceLoop, LoopCloser, LoopEvidence, LoopJob};
 use crate::place_recognition::{PlaceRecognition, PlaceRecognitionConfig, features};
 use crate::tracker::{Tracked, TrackedThen, Tracker, TrackerStats};
 use data::camera::SensorModel;
@@ -111,19 +111,6 @@ pub struct LoopEvent {
     pub correction: Option<LoopDrift>,
     /// What an appearance loop rests on (stereo and RGB-D).
     pub evidence: Option<LoopEvidence>,
-}
-
-/// What an appearance loop of the stereo and RGB-D system rests on: a person reading the run
-/// tells a strong loop from a weak one by it (a place that only looks like another — repeated
-/// façades — gives a few RANSAC inliers and finds a few per cent of the old place's points).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct LoopEvidence {
-    /// Inliers of the 3-point RANSAC on the ORB matches (thesis eq. 6.9).
-    pub ransac_inliers: usize,
-    /// Old-place map points found by the guided matching at the pose the loop implies.
-    pub old_points_found: usize,
-    /// Old-place map points predicted visible there (searched).
-    pub old_points_predicted: usize,
 }
 
 /// A lost frame found again in the map by appearance ([`PlaceRecognition::relocalise`]) and
@@ -1144,12 +1131,13 @@ impl LiveSystem {
             } else {
                 "appearance"
             };
-            let evidence = LoopEvidence {
-                ransac_inliers: event.ransac_inliers,
-                old_points_found: event.map_matches,
-                old_points_predicted: event.map_predicted,
-            };
-            self.loop_event(event.keyframe, event.old, kind, event.drift, Some(evidence));
+            self.loop_event(
+                event.keyframe,
+                event.old,
+                kind,
+                event.drift,
+                Some(event.evidence),
+            );
         }
         if let Some(worker) = self.worker.take() {
             drop(worker.wake);

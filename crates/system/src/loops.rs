@@ -61,19 +61,27 @@ pub struct AppearanceLoop {
     pub keyframe: KeyframeId,
     /// The old keyframe it sees the place of.
     pub old: KeyframeId,
-    /// RANSAC inliers of the ORB matches.
-    pub ransac_inliers: usize,
-    /// Old map points found in the new keyframe by the guided matching.
-    pub map_matches: usize,
-    /// Old map points predicted visible in the new keyframe at the pose the loop implies
-    /// (searched): a true revisit finds a good part of them, a place that only looks alike
-    /// (repeated façades) a few per cent.
-    pub map_predicted: usize,
+    /// What it rests on: the RANSAC inliers of the ORB matches, and the old map points the
+    /// guided matching found in the new keyframe of those predicted visible there.
+    pub evidence: LoopEvidence,
     /// The correction the loop made to the new keyframe, against the path since the old one.
     pub drift: Option<LoopDrift>,
     /// The loop joined two maps (the new keyframe's, started after a loss, moved onto the
     /// old one's): the keyframes moved and how far the new keyframe moved (metres).
     pub merged: Option<(usize, f64)>,
+}
+
+/// What an appearance loop of the stereo and RGB-D system rests on: a person reading the run
+/// tells a strong loop from a weak one by it (a place that only looks like another — repeated
+/// façades — gives a few RANSAC inliers and finds a few per cent of the old place's points).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoopEvidence {
+    /// Inliers of the 3-point RANSAC on the ORB matches (thesis eq. 6.9).
+    pub ransac_inliers: usize,
+    /// Old-place map points found by the guided matching at the pose the loop implies.
+    pub old_points_found: usize,
+    /// Old-place map points predicted visible there (searched).
+    pub old_points_predicted: usize,
 }
 
 /// Why the loop closer failed (a keyframe without a loop is not a failure).
@@ -211,7 +219,11 @@ impl LoopCloser {
             return Ok(None);
         };
         let t = Instant::now();
-        let map_matches = place.correspondences.len();
+        let evidence = LoopEvidence {
+            ransac_inliers: candidate.ransac_inliers,
+            old_points_found: place.correspondences.len(),
+            old_points_predicted: map_predicted,
+        };
         let closure =
             self.mapper
                 .close_appearance_loop(&mut graph.write(), job.keyframe, &place)?;
@@ -220,9 +232,7 @@ impl LoopCloser {
             AppearanceClosure::Closed { old, drift } => Some(AppearanceLoop {
                 keyframe: job.keyframe,
                 old,
-                ransac_inliers: candidate.ransac_inliers,
-                map_matches,
-                map_predicted,
+                evidence,
                 drift,
                 merged: None,
             }),
@@ -233,9 +243,7 @@ impl LoopCloser {
             } => Some(AppearanceLoop {
                 keyframe: job.keyframe,
                 old,
-                ransac_inliers: candidate.ransac_inliers,
-                map_matches,
-                map_predicted,
+                evidence,
                 drift: None,
                 merged: Some((keyframes, displacement)),
             }),
