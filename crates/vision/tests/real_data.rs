@@ -167,6 +167,11 @@ fn simd_and_scalar_paths_agree_on_real_frames() {
         let bits = |i: Image<f32>| i.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let f = || bits(block_match(l, r, &params).unwrap());
         assert!(f() == vision::simd::scalar_only(f), "stereo, {name}");
+        // The AVX-512 interior kernels (where the CPU has them) against the AVX2 ones.
+        assert!(
+            f() == vision::simd::without_avx512(f),
+            "stereo AVX-512, {name}"
+        );
     }
     if let Some(dir) = data_dir("middlebury_stereo") {
         let d = dir.join("tsukuba");

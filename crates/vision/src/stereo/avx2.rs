@@ -260,27 +260,32 @@ unsafe fn costs_range<const P: usize, const BORDER: bool>(
     }
 }
 
-/// `matcher::row_scalar` with vectors: one row pass, `LANES` disparities per vector.
+/// `matcher::row_scalar` with vectors: one row pass, `LANES` disparities per vector; `wide`:
+/// the interior columns by `super::avx512`'s kernels where they take the shape.
 ///
 /// # Safety
-/// AVX2; sizes checked (`RowIo::check`; every offset of a `Step` lies inside them).
+/// AVX2 (and AVX-512 F/BW/VL/BITALG if `wide`); sizes checked (`RowIo::check`; every offset of
+/// a `Step` lies inside them).
 #[target_feature(enable = "avx2")]
-pub(super) unsafe fn row(io: RowIo) {
-    // SAFETY: forwarded (AVX2).
+pub(super) unsafe fn row(io: RowIo, wide: bool) {
+    // SAFETY: forwarded (AVX2, and AVX-512 if wide).
     unsafe {
-        match io.shape.n() {
-            5 => row_n::<5>(io),
-            3 => row_n::<3>(io),
-            1 => row_n::<1>(io),
-            _ => row_n::<0>(io),
+        match (io.shape.n(), wide) {
+            (5, false) => row_n::<5, false>(io),
+            (3, false) => row_n::<3, false>(io),
+            (1, false) => row_n::<1, false>(io),
+            (5, true) => row_n::<5, true>(io),
+            (3, true) => row_n::<3, true>(io),
+            (1, true) => row_n::<1, true>(io),
+            _ => row_n::<0, false>(io),
         }
     }
 }
 
-/// [`row`] with `N = 2s + 1` known (`0`: any).
+/// [`row`] with `N = 2s + 1` known (`0`: any), `WIDE` its `wide`.
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn row_n<const N: usize>(mut io: RowIo) {
+unsafe fn row_n<const N: usize, const WIDE: bool>(mut io: RowIo) {
     io.check();
     io.prepare();
     let Shape { w, ndp, s, .. } = io.shape;
@@ -296,6 +301,19 @@ unsafe fn row_n<const N: usize>(mut io: RowIo) {
             macro_rules! run {
                 ($($k:literal)*) => {
                     match ndp / LANES {
+                        $($k if WIDE => {
+                            // SAFETY: AVX-512 (WIDE); the ranges are io.interior()'s, a_slot
+                            // follows.
+                            unsafe {
+                                use super::avx512 as wide;
+                                let a = wide::interior_n::<N, $k, true>(&mut io, masked.clone(), a_slot);
+                                Some(if fused {
+                                    wide::interior_fused::<N, $k>(&mut io, plain.clone(), a)
+                                } else {
+                                    wide::interior_n::<N, $k, false>(&mut io, plain.clone(), a)
+                                })
+                            }
+                        })*
                         $($k => {
                             // SAFETY: AVX2; the ranges are io.interior()'s, a_slot follows.
                             unsafe {

@@ -45,7 +45,8 @@
 //!    winner and the left-right check; the median once all rows are done.
 //!
 //! The AVX2 kernels specialise the interior columns (every stage, no clamping; `2s + 1` and
-//! the padded disparity count known at compile time: constant offsets, unrolled chunks), and
+//! the padded disparity count known at compile time: constant offsets, unrolled chunks; on a
+//! CPU with AVX-512, `avx512`'s kernels, 32 disparities per vector, take these columns), and
 //! there, on rows with a new cost row, compute that row's costs in the column step itself
 //! (7×7 census), so the byte arithmetic of the costs and the loads of the aggregation share
 //! the column instead of a separate pass. The scalar kernels are the reference: same results
@@ -426,6 +427,8 @@ fn run<const AVX2: bool>(
     let row_len = shape.row_len();
     let cost_slots = 2 * r + 2;
     let cs = b.cost_stride;
+    // The AVX-512 interior kernels where the CPU has them (same results).
+    let wide = AVX2 && crate::simd::avx512();
     if AVX2 {
         let c = shape.census_radius;
         for (img, pad) in [left, right].into_iter().zip(&mut b.padded) {
@@ -522,7 +525,7 @@ fn run<const AVX2: bool>(
         #[cfg(target_arch = "x86_64")]
         if AVX2 {
             // SAFETY: AVX2 instances run after `simd::avx2()`; sizes checked inside.
-            unsafe { super::avx2::row(io) };
+            unsafe { super::avx2::row(io, wide) };
         } else {
             row_scalar(io);
         }

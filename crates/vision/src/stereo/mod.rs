@@ -12,6 +12,8 @@
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 mod matcher;
 mod median;
 
@@ -507,6 +509,14 @@ mod tests {
             (66, 24, 11, 3, 2, 3, 0.0, 1.0, true),
             (90, 20, 40, 1, 2, 3, 0.0, 1.0, true),
             (60, 26, 20, 0, 0, 3, 0.0, 1.0, true),
+            // Shapes of the AVX-512 interior kernels (an even number of 16-lane chunks, the
+            // fused costs in 64-lane groups and a 32-lane one), wide enough for an interior.
+            (300, 40, 63, 4, 2, 3, 0.0, 1.0, true),
+            (330, 30, 95, 4, 2, 3, 0.0, 1.0, true),
+            (400, 30, 118, 4, 2, 3, 0.0, 1.0, true),
+            (150, 30, 30, 4, 1, 3, 0.0, 1.0, true),
+            (200, 30, 61, 2, 0, 3, 0.1, 1.0, true),
+            (260, 20, 90, 3, 2, 2, 0.0, 1.0, true),
         ];
         for (seed, (w, h, nd, br, sr, cr, uniq, lr, median)) in cases.into_iter().enumerate() {
             let (left, right) = slanted_pair(w, h, seed as u64, 5, 3);
@@ -522,9 +532,11 @@ mod tests {
             let want = block_match_reference(&left, &right, &params).unwrap();
             let fast = block_match(&left, &right, &params).unwrap();
             let scalar = crate::simd::scalar_only(|| block_match(&left, &right, &params)).unwrap();
+            let avx2 = crate::simd::without_avx512(|| block_match(&left, &right, &params)).unwrap();
             let bits = |i: &Image<f32>| i.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&fast), bits(&want), "case {seed}");
             assert_eq!(bits(&scalar), bits(&want), "case {seed}");
+            assert_eq!(bits(&avx2), bits(&want), "case {seed}");
             assert!(want.data().iter().any(|x| x.is_finite()), "case {seed}");
         }
     }
