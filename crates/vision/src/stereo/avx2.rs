@@ -261,7 +261,7 @@ unsafe fn costs_range<const P: usize, const BORDER: bool>(
 }
 
 /// `matcher::row_scalar` with vectors: one row pass, `LANES` disparities per vector; `wide`:
-/// the interior columns by `super::avx512`'s kernels where they take the shape.
+/// the interior columns by `super::avx512`'s kernels (32 disparities per vector).
 ///
 /// # Safety
 /// AVX2 (and AVX-512 F/BW/VL/BITALG if `wide`); sizes checked (`RowIo::check`; every offset of
