@@ -306,7 +306,11 @@ unsafe fn row_n<const N: usize, const WIDE: bool>(mut io: RowIo) {
                             // follows.
                             unsafe {
                                 use super::avx512 as wide;
-                                let a = wide::interior_n::<N, $k, true>(&mut io, masked.clone(), a_slot);
+                                let a = wide::interior_n::<N, $k, true>(
+                                    &mut io,
+                                    masked.clone(),
+                                    a_slot,
+                                );
                                 Some(if fused {
                                     wide::interior_fused::<N, $k>(&mut io, plain.clone(), a)
                                 } else {

@@ -6,9 +6,9 @@
 //!
 //! Why only these: they are half of a stereo frame's cycles (KITTI, `perf`), load- and
 //! store-bound on `u16` lanes, so twice the lanes is nearly half the instructions (measured:
-//! a KITTI pair 1.3× faster, the rings of the shifted windows and pixel costs living in L2). An odd
-//! number of 16-lane chunks ends in one 256-bit chunk (plain loads and stores, not masked
-//! ones, which the next column's loads could not forward from).
+//! a KITTI pair 1.3× faster, the rings of the shifted windows and pixel costs living in L2).
+//! An odd number of 16-lane chunks ends in one 256-bit chunk (plain loads and stores, not
+//! masked ones, which the next column's loads could not forward from).
 //!
 //! Every function here needs a CPU with AVX-512 F, BW, VL and BITALG (`crate::simd::avx512()`).
 
@@ -234,7 +234,8 @@ unsafe fn columns<const N: usize, const K: usize, const MASK: bool, const FUSED:
                     let (rcost, rindex) = (p.rc.add(right + k), p.ri.add(right + k));
                     let old = ld(rcost);
                     let best = _mm512_min_epu16(old, m);
-                    // Replace where m is strictly lower (the earlier, smaller disparity kept on ties).
+                    // Replace where m is strictly lower (the earlier, smaller disparity kept on
+                    // ties).
                     let keep = _mm512_cmpeq_epi16_mask(best, old);
                     st(rcost, best);
                     st(rindex, _mm512_mask_blend_epi16(keep, d, ld(rindex)));
