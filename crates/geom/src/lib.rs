@@ -25,6 +25,8 @@
 //!   check, triangulation, 8-point RANSAC relative pose (thesis §3.5);
 //! - [`homography`]: the normalised DLT, transfer and Sampson errors, 4-point RANSAC and the
 //!   decomposition into `(R, t/d, n)`;
+//! - [`pnp`]: the minimal three-point absolute pose (P3P), the re-projection refinement and
+//!   PnP RANSAC (relocalising a monocular camera against its map);
 //! - [`bootstrap`]: the monocular two-view bootstrap choosing between the homography and the
 //!   essential matrix by Torr's GRIC, with typed "too little parallax" / "ambiguous" states.
 //!
@@ -38,6 +40,7 @@ pub mod bootstrap;
 mod distortion;
 pub mod homography;
 mod pinhole;
+pub mod pnp;
 pub mod ransac;
 mod stereo;
 pub mod two_view;
