@@ -463,6 +463,29 @@ impl MonoExplorer {
         true
     }
 
+    /// Restarts tracking in the existing map at `frame` from `camera_from_world` (a lost
+    /// camera found again, e.g. by P3P against a keyframe's points): the next
+    /// [`process`](Self::process)ed frame, which must come after `frame − 1`, is predicted
+    /// at that pose with no motion. The tracks of before the loss are gone, so their
+    /// associations and the running feature filters are dropped; the front-end
+    /// [`associate`](Self::associate)s the map points it finds around the pose before
+    /// processing the frame. `false` (nothing changed) before the bootstrap: there is no map
+    /// to return to.
+    pub fn relocalise(&mut self, frame: usize, camera_from_world: Se3) -> bool {
+        if self.map.keyframes.is_empty() {
+            return false;
+        }
+        self.active.clear();
+        self.filters.retain(|_, _| false);
+        self.filter_of_track.clear();
+        self.state = State::Tracking {
+            last_frame: frame.saturating_sub(1),
+            last_pose: camera_from_world,
+            velocity: Se3::identity(),
+        };
+        true
+    }
+
     /// Corrects the map by `correct` — a loop correction that moves and rescales keyframes
     /// (thesis ch. 5, [`crate::loop_closure::correction::correct_graph`]; anchored points
     /// follow their keyframes) — and carries the exploration with it: the last frame's pose
@@ -1397,6 +1420,105 @@ mod tests {
                 assert!(worst > 5.0, "{worst} px");
             }
         }
+    }
+
+    /// A camera lost for ten frames, whose tracks all die, found again by P3P RANSAC against
+    /// the map's points (`geom::pnp`) and relocalised there: it tracks on in the same map with
+    /// new tracks (associated with the points they see), and its trajectory after the gap
+    /// agrees with the one before it as the ground truth does (one similarity for both).
+    #[test]
+    fn a_lost_camera_relocalised_by_p3p_tracks_on_in_the_same_map() {
+        let (truth, frames) = sideways(5, 100, 0.5);
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        let mut explorer = MonoExplorer::new(camera, map_reuse(0.5));
+        assert!(!explorer.relocalise(0, Se3::identity()), "no map yet");
+        for (f, m) in frames.iter().enumerate().take(60) {
+            explorer.process(f, m).unwrap();
+        }
+        // Frame 60 measures nothing (tracking is lost: the exploration stops tracking),
+        // 61–69 are not given; from 70 on every track is new (ids + 10 000).
+        assert!(matches!(
+            explorer.process(60, &[]),
+            Err(ExplorationError::TrackingLost { frame: 60, .. })
+        ));
+        const NEW: TrackId = 10_000;
+        let renamed: Vec<Vec<(TrackId, Vector2<f64>)>> = frames[70..]
+            .iter()
+            .map(|m| m.iter().map(|&(t, z)| (t + NEW, z)).collect())
+            .collect();
+        let point_of: HashMap<TrackId, PointId> = explorer
+            .map()
+            .graph
+            .points()
+            .map(|(p, _)| (explorer.map().track(p), p))
+            .collect();
+        let seen: Vec<(TrackId, PointId, Vector2<f64>)> = renamed[0]
+            .iter()
+            .filter_map(|&(t, z)| point_of.get(&(t - NEW)).map(|&p| (t, p, z)))
+            .collect();
+        let normalised: Vec<Vector2<f64>> = seen
+            .iter()
+            .map(|(_, _, z)| camera.normalised_from_pixel(z))
+            .collect();
+        let points: Vec<Vector3<f64>> = seen
+            .iter()
+            .map(|(_, p, _)| explorer.map().graph.point_world(*p).unwrap())
+            .collect();
+        let sigma = vec![0.5 / 500.0; seen.len()];
+        let pnp = geom::pnp::PnpEstimator {
+            normalised: &normalised,
+            points: &points,
+            sigma: &sigma,
+        };
+        let found = geom::ransac::ransac(
+            &pnp,
+            &RansacConfig {
+                threshold: 3.03,
+                ..RansacConfig::default()
+            },
+        )
+        .unwrap();
+        assert!(found.inliers.len() >= 20, "{} inliers", found.inliers.len());
+        assert!(explorer.relocalise(70, found.model));
+        assert!(explorer.active().is_empty());
+        for (t, p, _) in &seen {
+            assert!(explorer.associate(*t, *p));
+        }
+        for (i, m) in renamed.iter().enumerate() {
+            let o = explorer
+                .process(70 + i, m)
+                .unwrap_or_else(|e| panic!("frame {}: {e}", 70 + i));
+            assert!(o.tracked >= 20, "frame {}: {} tracked", 70 + i, o.tracked);
+        }
+        // The true centres in the map's frame and scale, by the first tracked frame's pose
+        // and the scale of the path before the gap: after it, the camera is where the map
+        // before it puts it, as far as it is for a camera never lost (the same frames without
+        // the gap: the monocular drift of this sequence).
+        let worst = |poses: &[(usize, Se3)]| {
+            let (first, t_first) = poses[0];
+            let (before, t_before) = *poses.iter().rfind(|(f, _)| *f < 60).unwrap();
+            let scale = (centre(&t_before) - centre(&t_first)).norm()
+                / (centre(&truth[before]) - centre(&truth[first])).norm();
+            let in_map = |c: &Vector3<f64>| t_first.inverse().act(&(truth[first].act(c) * scale));
+            poses
+                .iter()
+                .filter(|(f, _)| *f >= 70)
+                .map(|(f, t)| (centre(t) - in_map(&centre(&truth[*f]))).norm() / scale)
+                .fold(0.0, f64::max)
+        };
+        let poses = explorer.frame_poses();
+        assert_eq!(poses.iter().filter(|(f, _)| *f >= 70).count(), 30);
+        let relocalised = worst(&poses);
+        let mut plain = MonoExplorer::new(camera, map_reuse(0.5));
+        for (f, m) in frames.iter().enumerate() {
+            plain.process(f, m).unwrap();
+        }
+        let never_lost = worst(&plain.frame_poses());
+        println!(
+            "worst centre error after the gap: relocalised {relocalised:.4} m, never lost \
+             {never_lost:.4} m (4 m path)"
+        );
+        assert!(relocalised <= 1.5 * never_lost + 0.005, "{relocalised} m");
     }
 
     /// With the keyframe criterion of coverage (`keyframe_rotation`), a camera that walks back
