@@ -351,7 +351,11 @@ pub struct TrackerConfig {
     /// map comes back into view), and keeps a trajectory without guessed offsets; with 1 s a
     /// new map started there at the guess, 1.5 m off until the merge 4 s later (live ATE 3.3
     /// → 14.8 cm). A camera that does not come back within it (a view the map never held)
-    /// goes on in the new map instead of staying lost. `.inf` never starts one.
+    /// goes on in the new map instead of staying lost. `.inf` never starts one. A monocular
+    /// camera relocalises alike (P3P against the keyframes' points) for as long, then
+    /// bootstraps a new map; 0 starts one at once, as before it relocalised (7-Scenes mono
+    /// with frames 301–399 cut: relocalised after 2.4 s, 814 of 901 frames posed in one map,
+    /// ATE 3.80 cm; at once: a new map, 589 frames posed, 4.79 cm).
     pub new_map_after: f64,
 }
 

@@ -18,20 +18,28 @@
 //!    measurements it does not explain removed (map reuse: a revisited place's points, found
 //!    again by guided search, hold the new keyframes where the old map has them).
 //!
-//! When the bootstrap finds no geometry within `max_bootstrap_frames`, or tracking loses the
-//! map, the system starts again from the current frame: the frames in between are `lost` with
-//! the reason, and the new map has its own frame and scale (there is no relocalisation or
-//! merge yet). The outputs hold one map, as the stereo system's: the one with the most
-//! keyframes; the other maps' frames have no pose, and their states say which map tracked them
-//! (`RunResult::new_maps` lists the maps started after a loss).
+//! When tracking loses the map (the tracks cannot follow into `mono.max_refused` frames in a
+//! row, or too few map points are measured), the map is kept and each following frame is
+//! relocalised in it if it can be (`MonoSystem::relocalise`: its ORB words against the
+//! keyframe database, P3P RANSAC against the best keyframes' points, the guided search of
+//! their neighbourhood around that pose): the camera then tracks on in the same map, and
+//! `RunResult::relocalisations` lists where. A camera not relocalised within
+//! `tracker.new_map_after` seconds, or lost before a map exists or without a vocabulary,
+//! starts again from the current frame, as when the bootstrap finds no geometry within
+//! `max_bootstrap_frames`: the frames in between are `lost` with the reason, and the new map
+//! has its own frame and scale (there is no merge of monocular maps yet). The outputs hold one
+//! map, as the stereo system's: the one with the most keyframes; the other maps' frames have
+//! no pose, and their states say which map tracked them (`RunResult::new_maps` lists the maps
+//! started after a loss).
 
 use crate::config::{MonoConfig, SystemConfig};
 use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
 use crate::live::{
-    FrameReport, LiveRun, LoopEvent, NewMap, RunResult, SystemError, largest_map, skipped_frame,
-    write_map,
+    FrameReport, LiveRun, LoopEvent, NewMap, Relocalisation, RunResult, SystemError, largest_map,
+    skipped_frame, write_map,
 };
+use crate::place_recognition::features::extract as extract_features;
 use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
 use crate::search::{SearchPoint, SearchScratch, predict, relocate, search, view_angle};
 use crate::tracker::TrackerStats;
@@ -294,9 +302,31 @@ pub struct MonoSystem {
     /// Per tracked frame: its position in the record, the last keyframe then, and the frame's
     /// pose relative to it (for the trajectory after the loops' correction).
     relative: Vec<(usize, KeyframeId, Se3)>,
-    /// The last keyframe's neighbourhood searched by `refind`, with the (keyframes, loops)
-    /// counts it was computed at.
-    neighbourhood: Option<((usize, usize), std::collections::HashSet<KeyframeId>)>,
+    /// The neighbourhood searched by `refind` — of the last keyframe, or of the keyframe a
+    /// relocalisation found until the next keyframe — with the (keyframes, loops, start) it
+    /// was computed at.
+    neighbourhood: Option<(NeighbourhoodKey, std::collections::HashSet<KeyframeId>)>,
+    /// Tracking lost in the current map, which each frame tries to relocalise in.
+    lost: Option<Lost>,
+    /// The keyframe the last relocalisation found, until the next keyframe is made.
+    reference: Option<KeyframeId>,
+    /// The relocalisations so far.
+    relocalisations: Vec<Relocalisation>,
+}
+
+/// What a cached `refind` neighbourhood was computed at: (keyframes, loops, start keyframe).
+type NeighbourhoodKey = (usize, usize, Option<KeyframeId>);
+
+/// A frame's measurements: `(track, pixel)`.
+type Measurements = Vec<(TrackId, Vector2<f64>)>;
+
+/// Where and why tracking was lost in a map that the following frames try to relocalise in
+/// (`MonoSystem::lose`).
+#[derive(Clone, Debug)]
+struct Lost {
+    frame: usize,
+    timestamp: f64,
+    why: String,
 }
 
 /// Large loops by appearance in a monocular map (thesis ch. 5): each keyframe's ORB words and
@@ -444,17 +474,22 @@ fn covisibility_edges(graph: &SlamGraph<2>, theta: usize) -> Vec<LoopEdge> {
         .collect()
 }
 
-/// The keyframes within the first `limit` of a breadth-first search from the last keyframe over
+/// The keyframes within the first `limit` of a breadth-first search from `start` (the last
+/// keyframe if `None`: where the camera tracks, except just after a relocalisation) over
 /// the covisibility graph (keyframes sharing at least `theta` points, and consecutive ones) and
 /// the accepted `loops`: the monocular `N2` (thesis §6.4.1).
 fn covisible_neighbourhood(
     graph: &SlamGraph<2>,
+    start: Option<KeyframeId>,
     theta: usize,
     limit: usize,
     loops: &[(KeyframeId, KeyframeId)],
 ) -> std::collections::HashSet<KeyframeId> {
     let mut seen = std::collections::HashSet::new();
-    let Some((last, _)) = graph.keyframes().last() else {
+    let Some(last) = start
+        .filter(|&k| graph.keyframe(k).is_some())
+        .or_else(|| graph.keyframes().last().map(|(k, _)| k))
+    else {
         return seen;
     };
     let mut queue = std::collections::VecDeque::from([last]);
@@ -579,6 +614,9 @@ impl MonoSystem {
             rejected_loops: 0,
             relative: Vec::new(),
             neighbourhood: None,
+            lost: None,
+            reference: None,
+            relocalisations: Vec::new(),
             warnings: Vec::new(),
         })
     }
@@ -702,6 +740,113 @@ impl MonoSystem {
         self.record.timings.record("loop: correction", t.elapsed());
     }
 
+    /// Tracking is lost at `frame` for the reason `why`. A map worth returning to (bootstrapped,
+    /// with a vocabulary to recognise its places, `tracker.new_map_after` > 0) is kept, and
+    /// the following frames try to relocalise in it ([`MonoSystem::relocalise`]); else a new
+    /// map starts at the next frame. Returns what the frame's state says of it.
+    fn lose(&mut self, frame: &data::sequence::Frame, why: String) -> String {
+        let worth = self.loops.is_some()
+            && self.config.tracker.new_map_after > 0.0
+            && self
+                .explorer
+                .as_ref()
+                .is_some_and(|e| e.map().keyframes.len() >= 2);
+        if !worth {
+            let reason = format!("{why}: a new map starts");
+            self.restart(format!("frame {}: {reason}", frame.index));
+            return reason;
+        }
+        // A failed relocalisation's frame keeps the loss it tried to end.
+        self.lost.get_or_insert_with(|| Lost {
+            frame: frame.index,
+            timestamp: frame.timestamp,
+            why: why.clone(),
+        });
+        self.tracks.reset();
+        self.refused = 0;
+        self.reference = None;
+        format!("{why}: relocalising in the map")
+    }
+
+    /// Looks for a lost frame in the current map (ORB-SLAM's relocalisation, Mur-Artal et al.
+    /// 2015, with this system's stages): its ORB words scored against the keyframe database,
+    /// the best keyframes verified 2D–3D by P3P RANSAC against their points (depths regressed
+    /// from their map points; [`PlaceRecognition::relocalise`]), which gives the frame's
+    /// pose; then new corner tracks from this frame and the map points of the found keyframe's
+    /// neighbourhood searched for around that pose (the guided search of `refind`, as on any
+    /// frame). Accepted with at least `tracker.min_good` points found: the exploration goes on
+    /// from the pose (`MonoExplorer::relocalise`) and the caller processes the frame's
+    /// measurements. `Err` says why not.
+    fn relocalise(
+        &mut self,
+        frame: &data::sequence::Frame,
+    ) -> Result<(Measurements, Relocalisation), String> {
+        let image = frame.gray();
+        let (Some(loops), Some(explorer)) = (self.loops.as_ref(), self.explorer.as_ref()) else {
+            return Err("no map or no vocabulary".into());
+        };
+        let features = extract_features(
+            image,
+            |_, _| None,
+            Vec::new(),
+            &self.camera,
+            loops.place.config(),
+        )
+        .map_err(|e| e.to_string())?;
+        let candidate = loops
+            .place
+            .relocalise(frame.index as u32, &features)
+            .ok_or("no keyframe's place verified")?;
+        let map = explorer.map();
+        let old = map
+            .graph
+            .keyframe(candidate.old)
+            .ok_or("the keyframe found is not in the map")?
+            .camera_from_world();
+        // The verification's pose is rigid in the old keyframe's camera units, which are its
+        // similarity's: composed with it, then made rigid as every mono pose.
+        let pose = rigid_from_similarity(&candidate.query_from_old.compose(old));
+        let relocalisation = Relocalisation {
+            frame: frame.index,
+            keyframe: candidate.old,
+            keyframe_frame: map.keyframe(candidate.old).frame,
+            ransac_inliers: candidate.ransac_inliers,
+            tracked: 0,
+        };
+        self.explorer
+            .as_mut()
+            .expect("checked above")
+            .relocalise(frame.index, pose);
+        self.reference = Some(candidate.old);
+        self.tracks.reset();
+        let mut measurements: Measurements = match self.tracks.push(image) {
+            Ok(Ok(tracks)) => tracks
+                .iter()
+                .map(|&(id, p)| (id, Vector2::new(p[0] as f64, p[1] as f64)))
+                .collect(),
+            _ => return Err("no corner tracks in this frame".into()),
+        };
+        let found = self.refind(frame.index, image, &mut measurements);
+        if found < self.config.tracker.min_good {
+            self.tracks.reset();
+            self.reference = None;
+            return Err(format!(
+                "keyframe {} (frame {}) verified with {} inliers, but only {found} of its \
+                 neighbourhood's map points found around the pose",
+                candidate.old.index(),
+                relocalisation.keyframe_frame,
+                candidate.ransac_inliers
+            ));
+        }
+        Ok((
+            measurements,
+            Relocalisation {
+                tracked: found,
+                ..relocalisation
+            },
+        ))
+    }
+
     /// Ends the current map and starts again at the next frame.
     fn restart(&mut self, why: String) {
         if let Some(explorer) = self.explorer.take() {
@@ -736,8 +881,8 @@ impl MonoSystem {
     /// Records a frame's pose and state and its report; returns the report as recorded.
     ///
     /// Only a pose in the first map is a pose in the world: a map started after tracking was
-    /// lost has a frame and a scale of its own, and nothing joins it to the first (there is no
-    /// relocalisation or merge for a monocular camera yet). Such a frame's state says so and
+    /// lost (and not relocalised in time) has a frame and a scale of its own, and nothing joins
+    /// it to the first (there is no merge of monocular maps yet). Such a frame's state says so and
     /// its pose is kept, for the outputs if its map is the one written
     /// ([`RunResult::world_map`]).
     fn push(
@@ -989,7 +1134,7 @@ impl MonoSystem {
             // Only keyframes of the last keyframe's neighbourhood: a place revisited after a
             // longer path is a loop, closed by appearance and the Sim(3) correction.
             let loops = self.loops.as_ref().map_or(0, |l| l.edges.len());
-            let key = (map.keyframes.len(), loops);
+            let key = (map.keyframes.len(), loops, self.reference);
             if self.neighbourhood.as_ref().is_none_or(|(k, _)| *k != key) {
                 let edges: Vec<(KeyframeId, KeyframeId)> = self
                     .loops
@@ -998,6 +1143,7 @@ impl MonoSystem {
                     .unwrap_or_default();
                 let hood = covisible_neighbourhood(
                     &map.graph,
+                    self.reference,
                     config.mapping.theta,
                     config.mapping.n2,
                     &edges,
@@ -1100,63 +1246,103 @@ impl LiveRun<2> for MonoSystem {
         let start = Instant::now();
         let image = frame.gray();
         let (width, height) = (image.width(), image.height());
-        let t = Instant::now();
-        let measurements: Result<Vec<(TrackId, Vector2<f64>)>, _> = self
-            .tracks
-            .push(image)
-            .map_err(|e| SystemError::Frame(e.into()))?
-            .map(|tracks| {
-                tracks
-                    .iter()
-                    .map(|&(id, p)| (id, Vector2::new(p[0] as f64, p[1] as f64)))
-                    .collect()
-            });
-        self.record
-            .timings
-            .record("frame: pyramid, LK tracks", t.elapsed());
-        let mut measurements = match measurements {
-            Ok(m) => {
-                self.refused = 0;
-                m
-            }
-            Err(Refused { survived, of }) => {
-                self.refused += 1;
-                let mut why = format!(
-                    "only {survived} of {of} corner tracks followed into this frame: refused"
-                );
-                if self.refused >= self.config.mono.max_refused {
-                    self.restart(format!(
-                        "frame {}: {} frames in a row refused: a new map starts",
-                        frame.index, self.refused
-                    ));
-                    self.refused = 0;
-                    why.push_str("; a new map starts");
+        // Lost in the current map: relocalise this frame, or start a new map once
+        // `tracker.new_map_after` has passed.
+        let mut relocalised = None;
+        if let Some(lost) = self.lost.clone() {
+            if frame.timestamp - lost.timestamp > self.config.tracker.new_map_after {
+                self.lost = None;
+                self.restart(format!(
+                    "frame {}: lost at frame {} ({}) and not relocalised within {} s: a new map \
+                     starts",
+                    frame.index, lost.frame, lost.why, self.config.tracker.new_map_after
+                ));
+            } else {
+                let t = Instant::now();
+                let found = self.relocalise(&frame);
+                self.record.timings.record("track: relocalise", t.elapsed());
+                match found {
+                    Ok(found) => relocalised = Some(found),
+                    Err(why) => {
+                        let report = FrameReport {
+                            index: frame.index,
+                            state: TrackingState::Lost(format!(
+                                "lost at frame {} ({}); relocalisation: {why}",
+                                lost.frame, lost.why
+                            )),
+                            keyframe: None,
+                            stats: None,
+                            time: start.elapsed(),
+                            time_tracking: start.elapsed(),
+                        };
+                        return Ok(self.push(report, &frame, None));
+                    }
                 }
-                let report = FrameReport {
-                    index: frame.index,
-                    state: TrackingState::Lost(why),
-                    keyframe: None,
-                    stats: None,
-                    time: start.elapsed(),
-                    time_tracking: start.elapsed(),
+            }
+        }
+        let (measurements, refound, relocalisation) = match relocalised {
+            Some((measurements, relocalisation)) => {
+                (measurements, relocalisation.tracked, Some(relocalisation))
+            }
+            None => {
+                let t = Instant::now();
+                let measurements: Result<Vec<(TrackId, Vector2<f64>)>, _> = self
+                    .tracks
+                    .push(image)
+                    .map_err(|e| SystemError::Frame(e.into()))?
+                    .map(|tracks| {
+                        tracks
+                            .iter()
+                            .map(|&(id, p)| (id, Vector2::new(p[0] as f64, p[1] as f64)))
+                            .collect()
+                    });
+                self.record
+                    .timings
+                    .record("frame: pyramid, LK tracks", t.elapsed());
+                let mut measurements = match measurements {
+                    Ok(m) => {
+                        self.refused = 0;
+                        m
+                    }
+                    Err(Refused { survived, of }) => {
+                        self.refused += 1;
+                        let mut why = format!(
+                            "only {survived} of {of} corner tracks followed into this frame: refused"
+                        );
+                        if self.refused >= self.config.mono.max_refused {
+                            let refused = self.refused;
+                            let lost =
+                                self.lose(&frame, format!("{refused} frames in a row refused"));
+                            why.push_str(&format!("; {lost}"));
+                        }
+                        let report = FrameReport {
+                            index: frame.index,
+                            state: TrackingState::Lost(why),
+                            keyframe: None,
+                            stats: None,
+                            time: start.elapsed(),
+                            time_tracking: start.elapsed(),
+                        };
+                        return Ok(self.push(report, &frame, None));
+                    }
                 };
-                return Ok(self.push(report, &frame, None));
+                let t = Instant::now();
+                self.verify(frame.index, image, &mut measurements);
+                if self.explorer.is_some() && self.config.mono.verify_tracks {
+                    self.record
+                        .timings
+                        .record("mono: verify tracks", t.elapsed());
+                }
+                let t = Instant::now();
+                let refound = self.refind(frame.index, image, &mut measurements);
+                if self.explorer.is_some() && self.config.mono.refind {
+                    self.record
+                        .timings
+                        .record("mono: re-find map points", t.elapsed());
+                }
+                (measurements, refound, None)
             }
         };
-        let t = Instant::now();
-        self.verify(frame.index, image, &mut measurements);
-        if self.explorer.is_some() && self.config.mono.verify_tracks {
-            self.record
-                .timings
-                .record("mono: verify tracks", t.elapsed());
-        }
-        let t = Instant::now();
-        let refound = self.refind(frame.index, image, &mut measurements);
-        if self.explorer.is_some() && self.config.mono.refind {
-            self.record
-                .timings
-                .record("mono: re-find map points", t.elapsed());
-        }
         let n_tracks = measurements.len();
         let t = Instant::now();
         if self.explorer.is_none() {
@@ -1188,6 +1374,18 @@ impl LiveRun<2> for MonoSystem {
         }
         let (state, pose, keyframe, stats) = match outcome {
             Ok(o) => {
+                if o.camera_from_world.is_some() {
+                    self.lost = None;
+                    if let Some(r) = relocalisation {
+                        self.relocalisations.push(Relocalisation {
+                            tracked: o.tracked,
+                            ..r
+                        });
+                    }
+                }
+                if o.keyframe.is_some() {
+                    self.reference = None;
+                }
                 let state = match o.camera_from_world {
                     None => TrackingState::Lost(format!(
                         "initialising: {n_tracks} corner tracks, {}",
@@ -1224,14 +1422,13 @@ impl LiveRun<2> for MonoSystem {
                     stats,
                 )
             }
-            Err(e) => {
-                let reason = match &e {
-                    ExplorationError::BootstrapFailed { .. } => {
-                        format!("{e}: initialising again")
-                    }
-                    _ => format!("{e}: a new map starts"),
-                };
+            Err(e @ ExplorationError::BootstrapFailed { .. }) => {
+                let reason = format!("{e}: initialising again");
                 self.restart(format!("frame {}: {reason}", frame.index));
+                (TrackingState::Lost(reason), None, None, None)
+            }
+            Err(e) => {
+                let reason = self.lose(&frame, e.to_string());
                 (TrackingState::Lost(reason), None, None, None)
             }
         };
@@ -1351,8 +1548,8 @@ impl LiveRun<2> for MonoSystem {
             } else {
                 format!(
                     "frame {frame}: tracking lost {lost_for:.1} s before; a new map (map {map}) \
-                     was initialised there, with a frame and a scale of its own (a monocular map \
-                     is not relocalised or merged yet): its {frames} frames have no pose in the \
+                     was initialised there, with a frame and a scale of its own (monocular maps \
+                     are not merged yet): its {frames} frames have no pose in the \
                      trajectories, and its keyframes and points are not in the map written"
                 )
             });
@@ -1403,8 +1600,7 @@ impl LiveRun<2> for MonoSystem {
             final_trajectory,
             frames: self.reports,
             loops,
-            // No relocalisation for a monocular camera yet: a new map after each loss.
-            relocalisations: Vec::new(),
+            relocalisations: self.relocalisations,
             new_maps,
             world_map: world,
             refused_loops: Vec::new(),

@@ -310,3 +310,92 @@ fn a_purely_rotating_camera_is_never_initialised_and_says_why() {
             .all(|f| f.world_from_camera.is_none())
     );
 }
+
+/// A camera lost in a mapped place is relocalised in the same map (P3P against a keyframe's
+/// points, then the guided search around that pose): 7-Scenes with frames 301–399 cut, as a
+/// camera that looks away for three seconds. The tracks cannot follow across the cut, so
+/// tracking is lost; the frames after it are tried against the keyframe database until one
+/// shows a mapped place, and from there the camera tracks on in the first map — no new map,
+/// and its poses after the loss agree with the ground truth under the similarity of its poses
+/// before it (a new map would have a frame and a scale of its own) about as well as those of
+/// a camera never lost (the same frames without the cut) do.
+#[test]
+fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
+    let Some(path) = paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
+    let camera = *sequence.info().camera.pinhole();
+    let vocabulary =
+        std::sync::Arc::new(system::place_recognition::vocabulary::default_vocabulary().unwrap());
+    let mut truth = std::collections::HashMap::new();
+    let mut run = |indices: &[usize]| {
+        let mut system = MonoSystem::new(camera, SystemConfig::default(), "cut")
+            .unwrap()
+            .with_loop_closure(vocabulary.clone())
+            .unwrap();
+        for &k in indices {
+            let frame = sequence.read(k).unwrap().unwrap();
+            truth.insert(k, frame.world_from_camera.expect("ground truth"));
+            system.process(frame).unwrap();
+        }
+        system.finish(false).unwrap()
+    };
+    let cut: Vec<usize> = (0..=300).chain(400..540).collect();
+    let r = run(&cut);
+    let never_lost = run(&(0..540).collect::<Vec<_>>());
+    assert!(r.new_maps.is_empty(), "{:?}", r.new_maps);
+    let first = r.relocalisations.first().expect("a relocalisation");
+    println!("relocalisations: {:?}", r.relocalisations);
+    assert!(
+        first.frame >= 400 && first.keyframe_frame <= 300,
+        "{first:?}"
+    );
+    assert!(
+        first.ransac_inliers >= 20 && first.tracked >= 40,
+        "{first:?}"
+    );
+    // The error after `from` under one similarity, fitted to the frames before the loss.
+    let after_loss = |r: &RunResult<2>, from: usize| {
+        let posed: Vec<(usize, Se3)> = r
+            .record
+            .frames
+            .iter()
+            .filter_map(|f| Some((f.index, f.world_from_camera?)))
+            .collect();
+        let (before_truth, before_est): (Vec<Se3>, Vec<Se3>) = posed
+            .iter()
+            .filter(|(k, _)| *k <= 300)
+            .map(|(k, p)| (truth[k], *p))
+            .unzip();
+        let fit = ate(&before_truth, &before_est, Alignment::Sim3).unwrap();
+        let errors: Vec<f64> = posed
+            .iter()
+            .filter(|(k, _)| *k >= from)
+            .map(|(k, e)| {
+                (fit.reference_from_estimate.act(e.translation()) - truth[k].translation()).norm()
+            })
+            .collect();
+        let rmse = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+        (fit.translation.rmse, errors.len(), rmse)
+    };
+    let (before, n, relocalised) = after_loss(&r, first.frame);
+    let (_, n_never, never) = after_loss(&never_lost, first.frame);
+    println!(
+        "before the loss: ATE {:.2} cm; from frame {} on, under the same similarity: {:.2} cm \
+         over {n} frames (never lost: {:.2} cm over {n_never})",
+        before * 100.0,
+        first.frame,
+        relocalised * 100.0,
+        never * 100.0
+    );
+    assert!(
+        n * 10 >= (540 - first.frame) * 9,
+        "{n} of the {} frames from the relocalisation on have a pose",
+        540 - first.frame
+    );
+    assert!(
+        relocalised <= 1.5 * never + 0.01,
+        "{relocalised} m, never lost {never} m"
+    );
+}

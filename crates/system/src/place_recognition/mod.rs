@@ -505,6 +505,9 @@ impl PlaceRecognition {
     /// `camera_from_old`). No normalisation: a lost frame has no neighbour known to show its
     /// place, and there is no neighbourhood to exclude; the geometric check (Θ inliers of the
     /// 3-point RANSAC) is the test. `seed` makes the RANSAC reproducible (the frame's index).
+    /// A frame without depth (a monocular camera: no 3D points, no depth samples) is verified
+    /// 2D–3D, by P3P RANSAC against the old keyframe's points ([`verify::verify_absolute`]);
+    /// `query_from_old` is then rigid in the old keyframe's camera units.
     pub fn relocalise(&self, seed: u32, features: &KeyframeFeatures) -> Option<LoopCandidate> {
         let bow = self.vocabulary.transform(&features.descriptors);
         let mut hypotheses: Vec<Hypothesis> = self
@@ -520,7 +523,11 @@ impl PlaceRecognition {
                 })
             })
             .collect();
-        self.verify_best(seed, features, &mut hypotheses)
+        if features.with_depth() == 0 && features.depth_samples.is_empty() {
+            self.verify_best_with(seed, features, &mut hypotheses, verify::verify_absolute)
+        } else {
+            self.verify_best(seed, features, &mut hypotheses)
+        }
     }
 
     /// Verifies the best [`max_verifications`](PlaceRecognitionConfig::max_verifications) of
@@ -532,10 +539,25 @@ impl PlaceRecognition {
         query: &KeyframeFeatures,
         hypotheses: &mut [Hypothesis],
     ) -> Option<LoopCandidate> {
+        self.verify_best_with(seed, query, hypotheses, verify::verify)
+    }
+
+    /// [`verify_best`](Self::verify_best) with the verification `verify`.
+    fn verify_best_with(
+        &self,
+        seed: u32,
+        query: &KeyframeFeatures,
+        hypotheses: &mut [Hypothesis],
+        verify: impl Fn(
+            (u32, &KeyframeFeatures),
+            (u32, &KeyframeFeatures),
+            &PlaceRecognitionConfig,
+        ) -> Verification,
+    ) -> Option<LoopCandidate> {
         let mut candidate: Option<LoopCandidate> = None;
         for h in hypotheses.iter_mut().take(self.config.max_verifications) {
             let old = &self.keyframes[&h.old].features;
-            let v = verify::verify((seed, query), (h.old.0, old), &self.config);
+            let v = verify((seed, query), (h.old.0, old), &self.config);
             if let Verification::Accepted {
                 query_from_old,
                 ransac_inliers,

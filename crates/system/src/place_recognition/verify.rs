@@ -27,6 +27,7 @@ use super::features::KeyframeFeatures;
 use super::{Alignment, LoopMatch, PlaceRecognitionConfig};
 use geom::CameraModel;
 use geom::align::align_se3;
+use geom::pnp::PnpEstimator;
 use geom::ransac::{Estimator, RansacConfig, ransac};
 use lie::{LieGroup, Se3, Sim3};
 use nalgebra::{Matrix3, Vector2, Vector3};
@@ -450,6 +451,110 @@ fn guided_matches(
         }
     }
     pairs
+}
+
+/// A query without depth (a monocular frame to relocalise) against an old keyframe: 2D–3D
+/// instead of 3D–3D. Descriptor matches from the query's keypoints to the old keypoints with
+/// a point — measured (stereo, RGB-D) or, in a monocular map, its depth regressed from the
+/// keyframe's map points as for a loop (`slam::loop_closure::knn_depth`, thesis §5.3.1) — then
+/// the query camera's pose in the old camera frame by P3P RANSAC (`geom::pnp`) on the
+/// re-projection error `‖proj(T·x_o) − m_q‖ / σ_q` (σ_q: [`PlaceRecognitionConfig::pixel_sigma`]
+/// at the query keypoint's pyramid scale) gated at `√χ²₂(inlier_probability)`, re-fitted by
+/// Gauss-Newton to the inliers. Accepted with at least Θ inliers; `query_from_old` is then
+/// rigid (scale 1), in the old keyframe's camera units.
+pub fn verify_absolute(
+    (query_id, query): (u32, &KeyframeFeatures),
+    (old_id, old): (u32, &KeyframeFeatures),
+    config: &PlaceRecognitionConfig,
+) -> Verification {
+    let loop_config = LoopClosureConfig::default();
+    let old_points: Vec<Option<Vector3<f64>>> = (0..old.keypoints.len())
+        .map(|i| {
+            old.points[i].or_else(|| {
+                let kp = &old.keypoints[i];
+                let z = Vector2::new(kp.u as f64, kp.v as f64);
+                let d = slam::loop_closure::knn_depth(
+                    &z,
+                    &old.depth_samples,
+                    loop_config.knn,
+                    loop_config.knn_max_distance,
+                )?;
+                old.camera.unproject_depth(&z, d).ok()
+            })
+        })
+        .collect();
+    let with_point: Vec<usize> = (0..old_points.len())
+        .filter(|&i| old_points[i].is_some())
+        .collect();
+    let all: Vec<usize> = (0..query.keypoints.len()).collect();
+    let matches = match_subsets(query, &all, old, &with_point, config);
+    if matches.len() < config.min_inliers.max(3) {
+        return Verification::TooFewMatches {
+            matches: matches.len(),
+        };
+    }
+    let f = focal(query);
+    let normalised: Vec<Vector2<f64>> = matches
+        .iter()
+        .map(|m| {
+            let kp = &query.keypoints[m.query];
+            query
+                .camera
+                .normalised_from_pixel(&Vector2::new(kp.u as f64, kp.v as f64))
+        })
+        .collect();
+    let points: Vec<Vector3<f64>> = matches
+        .iter()
+        .map(|m| old_points[m.train].unwrap_or_default())
+        .collect();
+    let sigma: Vec<f64> = matches
+        .iter()
+        .map(|m| config.pixel_sigma * query.keypoints[m.query].scale as f64 / f)
+        .collect();
+    let estimator = PnpEstimator {
+        normalised: &normalised,
+        points: &points,
+        sigma: &sigma,
+    };
+    let gate = lsq::chi2_quantile(2, config.inlier_probability).sqrt();
+    let ransac_config = RansacConfig {
+        threshold: gate,
+        confidence: config.ransac_confidence,
+        max_iterations: config.ransac_max_iterations,
+        min_iterations: 10,
+        seed: hypothesis_seed(config, query_id, old_id),
+    };
+    let Ok(result) = ransac(&estimator, &ransac_config) else {
+        return Verification::TooFewInliers {
+            matches: matches.len(),
+            inliers: 0,
+        };
+    };
+    if result.inliers.len() < config.min_inliers {
+        return Verification::TooFewInliers {
+            matches: matches.len(),
+            inliers: result.inliers.len(),
+        };
+    }
+    let ransac_inliers = result.inliers.len();
+    let pose = estimator
+        .refine(&result.model, &result.inliers, 10)
+        .unwrap_or(result.model);
+    let inliers: Vec<LoopMatch> = (0..matches.len())
+        .filter(|&i| estimator.error(&pose, i) <= gate)
+        .map(|i| loop_match(query, old, &matches[i]))
+        .collect();
+    if inliers.len() < config.min_inliers {
+        return Verification::TooFewInliers {
+            matches: matches.len(),
+            inliers: inliers.len(),
+        };
+    }
+    Verification::Accepted {
+        query_from_old: Sim3::from_se3(&pose),
+        ransac_inliers,
+        inliers,
+    }
 }
 
 /// Monocular maps (thesis §6.4.2, "in the case of monocular SLAM"): all descriptor matches,
