@@ -439,6 +439,40 @@ mod tests {
         assert!(total >= trials, "{total} solutions in {trials} trials");
     }
 
+    /// The same sample as OpenCV 5.0's `solveP3P` (both its P3P and AP3P flags, identity `K`):
+    /// the same two poses, the true one and the mirror-like second root.
+    #[test]
+    fn p3p_gives_the_solutions_opencv_gives() {
+        let x = [
+            Vector3::new(0.2, 0.1, 3.0),
+            Vector3::new(-1.0, 0.4, 4.0),
+            Vector3::new(0.7, -0.8, 5.0),
+        ];
+        let m = [
+            (0.02884693681243652, -0.22554729252284694),
+            (-0.22110587570008933, -0.2124530747999335),
+            (0.057864634280580855, -0.3829916718082356),
+        ];
+        let b = m.map(|(u, v)| Vector3::new(u, v, 1.0));
+        // OpenCV's (rvec, tvec): R = exp(rvec^).
+        let opencv = [
+            ([0.3, -0.2, 0.1], [0.5, -0.3, 2.0]),
+            (
+                [2.6041388236030723, -0.8002124118352105, -0.414241163621522],
+                [1.2220206051829519, -0.4352099630770583, 9.03825676700144],
+            ),
+        ];
+        let poses = p3p(&b, &x);
+        assert_eq!(poses.len(), opencv.len(), "{poses:?}");
+        for (r, t) in opencv {
+            let expected = Se3::new(lie::So3::exp(&Vector3::from(r)), Vector3::from(t));
+            assert!(
+                poses.iter().any(|p| pose_error(p, &expected) < 1e-9),
+                "OpenCV's {r:?} {t:?} not among {poses:?}"
+            );
+        }
+    }
+
     #[test]
     fn p3p_refuses_degenerate_samples() {
         let b = [
