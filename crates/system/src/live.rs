@@ -745,13 +745,16 @@ impl LiveSystem {
     /// pose that gives, and the frame tracked again from there against that keyframe's
     /// neighbourhood (guided search with the wide radius, motion-only BA). Accepted only if the
     /// tracking is good; else the tracker and the reference keyframe are left as they were.
-    /// Frames without depth are not tried (the verification is 3D–3D).
+    /// A frame without depth (an RGB-D frame with no depth image) is verified 2D–3D instead,
+    /// by P3P RANSAC against the keyframe's points ([`verify::verify_absolute`]).
+    ///
+    /// [`verify::verify_absolute`]: crate::place_recognition::verify::verify_absolute
     fn relocalise(&mut self, frame: &Arc<FrameData>) -> Option<Tracked> {
         let (database, config) = self.relocaliser.as_ref()?;
-        let depth = frame.depth.as_ref()?;
+        let depth = frame.depth.as_ref();
         let features = features::extract(
             frame.gray(),
-            |u, v| pixel_depth(depth, u, v),
+            |u, v| depth.and_then(|d| pixel_depth(d, u, v)),
             Vec::new(),
             self.sensor.pinhole(),
             config,

@@ -566,3 +566,87 @@ fn a_lost_frame_is_found_among_the_keyframes_at_its_true_pose() {
         revisits.len()
     );
 }
+
+/// Relocalisation of frames without depth (a monocular camera, or an RGB-D frame with no depth
+/// image): the revisit frames 617–679 (odd: 7-Scenes has no depth image there) queried
+/// against keyframes of frames 100–300 (every fourth, with depth) are verified 2D–3D by P3P
+/// RANSAC (`verify::verify_absolute`). Every accepted pose is within the thesis's "same place"
+/// of the ground truth (none is a false loop), most are within 10 cm and 5° — the colour
+/// camera's calibration error (module docs) — and most revisit frames are relocalised.
+#[test]
+fn frames_without_depth_are_relocalised_by_p3p() {
+    let Some(root) = paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let data_root = paths::dataset_root().unwrap();
+    let config = PlaceRecognitionConfig::default();
+    let voc = load_vocabulary(None, Some(&data_root), &config.orb.params()).unwrap();
+    let seq = Sequence::open(&root, &OpenOptions::default()).unwrap();
+    let camera = *seq.info().camera.pinhole();
+    let mut pr = PlaceRecognition::new(Arc::clone(&voc.vocabulary), config.clone()).unwrap();
+    let mut keyframes = Vec::new();
+    for (i, index) in (100..=300).step_by(4).enumerate() {
+        let (image, depth, world_from_camera) = read_rgbd(&seq, index);
+        pr.add_keyframe(
+            KeyframeId::from_index(i),
+            &image,
+            |u, v| depth.metres_at(u, v),
+            &camera,
+        )
+        .unwrap();
+        keyframes.push((index, world_from_camera));
+    }
+    let (mut queries, mut accepted, mut precise) = (0, 0, 0);
+    let mut errors = Vec::new();
+    for index in (617..680).step_by(2) {
+        let frame = seq.read(index).unwrap().unwrap();
+        let world_from_camera = frame.world_from_camera.unwrap();
+        let FrameImages::Rgbd {
+            image, depth: None, ..
+        } = frame.images
+        else {
+            panic!("frame {index} should have no depth image");
+        };
+        let features = system::place_recognition::features::extract(
+            &image,
+            |_, _| None,
+            Vec::new(),
+            &camera,
+            &config,
+        )
+        .unwrap();
+        queries += 1;
+        let Some(c) = pr.relocalise(index as u32, &features) else {
+            continue;
+        };
+        accepted += 1;
+        let (old_index, world_from_old) = keyframes[c.old.index()];
+        let estimated = c.query_from_old.rigid_part();
+        let truth = world_from_camera.inverse().compose(&world_from_old);
+        let error = estimated.compose(&truth.inverse());
+        let (t, r) = (
+            error.translation().norm(),
+            error.rotation().log().norm().to_degrees(),
+        );
+        println!(
+            "frame {index} ← keyframe of frame {old_index}: {} RANSAC inliers, error {:.1} cm, \
+             {r:.1}°",
+            c.ransac_inliers,
+            t * 100.0
+        );
+        assert!(
+            t <= FALSE_TRANSLATION && r <= FALSE_ROTATION_DEG,
+            "frame {index}: a false relocalisation ({t} m, {r}°)"
+        );
+        precise += usize::from(t <= IMPRECISE_TRANSLATION && r <= IMPRECISE_ROTATION_DEG);
+        errors.push(t);
+    }
+    errors.sort_by(f64::total_cmp);
+    println!(
+        "{accepted} of {queries} depth-less revisit frames relocalised, {precise} within 10 cm \
+         and 5°, median error {:.1} cm",
+        errors.get(errors.len() / 2).copied().unwrap_or(f64::NAN) * 100.0
+    );
+    assert!(accepted * 2 >= queries, "{accepted} of {queries}");
+    assert!(precise * 10 >= accepted * 8, "{precise} of {accepted}");
+}
