@@ -18,9 +18,10 @@ courtyard) under OUT/sequences:
   the map has not seen; the camera comes back to the mapped part about 20 s later.
 
 7-Scenes runs on its frames with depth (dwslam `--depth-frames-only`, ORB-SLAM3 RGB-D on
-associations.txt). dwslam runs deterministic, ORB-SLAM3 `--orb-runs` times (it is not
-deterministic), each pinned to one core. ATE by evo_ape -a (SE(3)) over the frames each system
-gave a pose, live and after the run, beside the fraction of frames tracked (dwslam: good or weak,
+associations.txt), and monocular on all its colour frames with the same cuts (dwslam `--sensor
+mono`, ORB-SLAM3 mono), as does the courtyard's first cut on its left images. dwslam runs deterministic, ORB-SLAM3 `--orb-runs` times (it is not
+deterministic), each pinned to one core. ATE by evo_ape -a (SE(3); monocular -a -s, Sim(3), one
+alignment for all the frames) over the frames each system gave a pose, live and after the run, beside the fraction of frames tracked (dwslam: good or weak,
 including frames tracked in a new map not joined to the first yet, which have no pose in the
 world) and dwslam's frames with a pose in each trajectory. Prints a markdown table (also
 OUT/table.md).
@@ -43,6 +44,7 @@ ap.add_argument("--venv", default=os.environ.get("LIVE_PEERS_VENV", os.path.expa
 ap.add_argument("--rendered", help="folder holding courtyard-stereo (rendered there when missing); omit to skip it")
 ap.add_argument("--orb-runs", type=int, default=2)
 ap.add_argument("--cpu", type=int, default=1)
+ap.add_argument("--only", help="run only the cases whose title contains this text (e.g. mono)")
 a = ap.parse_args()
 a.out = os.path.abspath(a.out)
 evo = os.path.join(a.venv, "bin", "evo_ape")
@@ -93,8 +95,9 @@ def kitti_cut(name, source, first, last):
     return seq
 
 
-def ate(gt, est):
-    p = subprocess.run([evo, "tum", gt, est, "-a", "--t_max_diff", "0.02"], capture_output=True, text=True)
+def ate(gt, est, mono=False):
+    scale = ["-s"] if mono else []
+    p = subprocess.run([evo, "tum", gt, est, "-a", *scale, "--t_max_diff", "0.02"], capture_output=True, text=True)
     m = re.search(r"rmse\s+([0-9.eE+-]+)", p.stdout)
     return float(m.group(1)) if m else None
 
@@ -111,11 +114,16 @@ def dwslam(name, seq, extra):
         sys.exit(f"{' '.join(cmd)} failed:\n{p.stderr[-2000:]}")
     s = json.load(open(os.path.join(out, "summary.json")))
     gt = os.path.join(out, "ground_truth.tum")
+    mono = s.get("sensor") == "mono"
+    final = os.path.join(out, "trajectory_final.tum")
+    if not os.path.exists(final):
+        # A monocular run with loops writes each correction's trajectory; Sim(3) is the default.
+        final = os.path.join(out, "trajectory_final_sim3.tum")
     return {
-        "ate_live": ate(gt, os.path.join(out, "trajectory.tum")),
-        "ate_final": ate(gt, os.path.join(out, "trajectory_final.tum")),
+        "ate_live": ate(gt, os.path.join(out, "trajectory.tum"), mono),
+        "ate_final": ate(gt, final, mono),
         "tracked": (s["tracking"]["good"] + s["tracking"]["weak"]) / s["frames"],
-        "with_pose": [count_poses(os.path.join(out, f)) / s["frames"] for f in ("trajectory.tum", "trajectory_final.tum")],
+        "with_pose": [count_poses(os.path.join(out, f)) / s["frames"] for f in ("trajectory.tum", final)],
         "relocalisations": [(r["frame"], r["keyframe_frame"]) for r in s.get("relocalisations", [])],
         "new_maps": [(m["frame"], m["joined"]) for m in s.get("new_maps", [])],
     }
@@ -142,6 +150,12 @@ cases.append(("7-Scenes RGB-D, frames 301-619 cut (a jump into the map)", "7scen
 seq, root = seven_scenes_cut("7scenes-jump-off-map", 301, 399)
 cases.append(("7-Scenes RGB-D, frames 301-399 cut (a jump off the map)", "7scenes-jump-off-map",
               seq, ["--depth-frames-only"], "7scenes", ["--data", root]))
+seq, root = seven_scenes_cut("7scenes-jump-into-map", 301, 619)
+cases.append(("7-Scenes mono, frames 301-619 cut (a jump into the map)", "7scenes-mono-jump-into-map",
+              seq, ["--sensor", "mono"], "7scenes-mono", ["--data", root]))
+seq, root = seven_scenes_cut("7scenes-jump-off-map", 301, 399)
+cases.append(("7-Scenes mono, frames 301-399 cut (a jump off the map)", "7scenes-mono-jump-off-map",
+              seq, ["--sensor", "mono"], "7scenes-mono", ["--data", root]))
 if a.rendered:
     courtyard = os.path.join(a.rendered, "courtyard-stereo")
     if not os.path.isdir(courtyard):
@@ -150,9 +164,14 @@ if a.rendered:
     seq = kitti_cut("courtyard-stereo-cut", courtyard, 1500, 2199)
     cases.append(("rendered courtyard stereo, frames 1500-2199 cut", "courtyard-cut", seq, ["--sensor", "stereo"],
                   "kitti-dir-stereo", ["--dir", seq]))
+    cases.append(("rendered courtyard mono, frames 1500-2199 cut", "courtyard-mono-cut", seq, ["--sensor", "mono"],
+                  "kitti-dir", ["--dir", seq]))
     seq = kitti_cut("courtyard-stereo-cut-first-lap", courtyard, 300, 699)
     cases.append(("rendered courtyard stereo, frames 300-699 cut (a jump off the map in the first lap)",
                   "courtyard-cut-first-lap", seq, ["--sensor", "stereo"], "kitti-dir-stereo", ["--dir", seq]))
+
+if a.only:
+    cases = [c for c in cases if a.only in c[0]]
 
 cm = lambda x: "—" if x is None else f"{100 * x:.2f} cm"
 rng = lambda xs: "—" if not xs else (cm(min(xs)) if min(xs) == max(xs) else f"{100 * min(xs):.2f}–{cm(max(xs))}")
