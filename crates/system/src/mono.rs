@@ -751,6 +751,7 @@ impl MonoSystem {
                 .explorer
                 .as_ref()
                 .is_some_and(|e| e.map().keyframes.len() >= 2);
+        self.refused = 0;
         if !worth {
             let reason = format!("{why}: a new map starts");
             self.restart(format!("frame {}: {reason}", frame.index));
@@ -763,7 +764,6 @@ impl MonoSystem {
             why: why.clone(),
         });
         self.tracks.reset();
-        self.refused = 0;
         self.reference = None;
         format!("{why}: relocalising in the map")
     }
@@ -1131,8 +1131,9 @@ impl MonoSystem {
             let (c, a) = (centre(&pose), axis(&pose));
             // A scan of every keyframe (a few hundred here: microseconds); a map of thousands
             // would want a spatial index.
-            // Only keyframes of the last keyframe's neighbourhood: a place revisited after a
-            // longer path is a loop, closed by appearance and the Sim(3) correction.
+            // Only keyframes of the last keyframe's neighbourhood (of the relocalisation's
+            // keyframe until the next keyframe): a place revisited after a longer path is a
+            // loop, closed by appearance and the Sim(3) correction.
             let loops = self.loops.as_ref().map_or(0, |l| l.edges.len());
             let key = (map.keyframes.len(), loops, self.reference);
             if self.neighbourhood.as_ref().is_none_or(|(k, _)| *k != key) {

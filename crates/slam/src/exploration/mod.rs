@@ -1424,8 +1424,9 @@ mod tests {
 
     /// A camera lost for ten frames, whose tracks all die, found again by P3P RANSAC against
     /// the map's points (`geom::pnp`) and relocalised there: it tracks on in the same map with
-    /// new tracks (associated with the points they see), and its trajectory after the gap
-    /// agrees with the one before it as the ground truth does (one similarity for both).
+    /// new tracks (associated with the points they see), and after the gap it is where the
+    /// map's frame and scale (from the path before the gap) put the ground truth, as closely
+    /// as a camera never lost (the same frames without the gap) is.
     #[test]
     fn a_lost_camera_relocalised_by_p3p_tracks_on_in_the_same_map() {
         let (truth, frames) = sideways(5, 100, 0.5);
