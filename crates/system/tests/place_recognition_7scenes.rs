@@ -498,6 +498,47 @@ fn monocular_loop_recovers_the_scale_drift() {
     assert!(translation_error < 0.2, "{translation_error} m");
 }
 
+/// A keyframe database of 7-Scenes frames (with depth) and what the relocalisation tests read.
+struct Database {
+    seq: Sequence,
+    camera: PinholeCamera,
+    config: PlaceRecognitionConfig,
+    place: PlaceRecognition,
+    /// Per keyframe (by id): its frame and ground-truth `world_from_camera`.
+    keyframes: Vec<(usize, Se3)>,
+}
+
+/// The default place recognition with `frames` as keyframes 0, 1, …; `None` without the data.
+fn database(frames: impl Iterator<Item = usize>) -> Option<Database> {
+    let root = paths::require("seven_scenes_redkitchen_1000")?;
+    let data_root = paths::dataset_root().unwrap();
+    let config = PlaceRecognitionConfig::default();
+    let voc = load_vocabulary(None, Some(&data_root), &config.orb.params()).unwrap();
+    let seq = Sequence::open(&root, &OpenOptions::default()).unwrap();
+    let camera = *seq.info().camera.pinhole();
+    let mut place = PlaceRecognition::new(Arc::clone(&voc.vocabulary), config.clone()).unwrap();
+    let mut keyframes = Vec::new();
+    for (i, index) in frames.enumerate() {
+        let (image, depth, world_from_camera) = read_rgbd(&seq, index);
+        place
+            .add_keyframe(
+                KeyframeId::from_index(i),
+                &image,
+                |u, v| depth.metres_at(u, v),
+                &camera,
+            )
+            .unwrap();
+        keyframes.push((index, world_from_camera));
+    }
+    Some(Database {
+        seq,
+        camera,
+        config,
+        place,
+        keyframes,
+    })
+}
+
 /// Relocalisation ([`PlaceRecognition::relocalise`]): keyframes every 10th frame of the first
 /// 300 (the kitchen's first half), then frames the live system would have lost, asked for
 /// their place without any neighbourhood or pose. The revisit of frames 136–205 (616–680)
@@ -508,27 +549,17 @@ fn monocular_loop_recovers_the_scale_drift() {
 #[test]
 fn a_lost_frame_is_found_among_the_keyframes_at_its_true_pose() {
     use system::place_recognition::features;
-    let Some(root) = paths::require("seven_scenes_redkitchen_1000") else {
+    let Some(Database {
+        seq,
+        camera,
+        config,
+        place: pr,
+        keyframes,
+    }) = database((0..=300).step_by(10))
+    else {
         return;
     };
-    let data_root = paths::dataset_root().unwrap();
-    let config = PlaceRecognitionConfig::default();
-    let voc = load_vocabulary(None, Some(&data_root), &config.orb.params()).unwrap();
-    let seq = Sequence::open(&root, &OpenOptions::default()).unwrap();
-    let camera = *seq.info().camera.pinhole();
-    let mut pr = PlaceRecognition::new(Arc::clone(&voc.vocabulary), config.clone()).unwrap();
-    let mut poses = Vec::new();
-    for index in (0..=300).step_by(10) {
-        let (image, depth, world_from_camera) = read_rgbd(&seq, index);
-        pr.add_keyframe(
-            KeyframeId::from_index(poses.len()),
-            &image,
-            |u, v| depth.metres_at(u, v),
-            &camera,
-        )
-        .unwrap();
-        poses.push(world_from_camera);
-    }
+    let poses: Vec<Se3> = keyframes.iter().map(|k| k.1).collect();
     let query = |index: usize| {
         let (image, depth, world_from_camera) = read_rgbd(&seq, index);
         let f = features::extract(
@@ -575,27 +606,16 @@ fn a_lost_frame_is_found_among_the_keyframes_at_its_true_pose() {
 /// camera's calibration error (module docs) — and most revisit frames are relocalised.
 #[test]
 fn frames_without_depth_are_relocalised_by_p3p() {
-    let Some(root) = paths::require("seven_scenes_redkitchen_1000") else {
+    let Some(Database {
+        seq,
+        camera,
+        config,
+        place: pr,
+        keyframes,
+    }) = database((100..=300).step_by(4))
+    else {
         return;
     };
-    let data_root = paths::dataset_root().unwrap();
-    let config = PlaceRecognitionConfig::default();
-    let voc = load_vocabulary(None, Some(&data_root), &config.orb.params()).unwrap();
-    let seq = Sequence::open(&root, &OpenOptions::default()).unwrap();
-    let camera = *seq.info().camera.pinhole();
-    let mut pr = PlaceRecognition::new(Arc::clone(&voc.vocabulary), config.clone()).unwrap();
-    let mut keyframes = Vec::new();
-    for (i, index) in (100..=300).step_by(4).enumerate() {
-        let (image, depth, world_from_camera) = read_rgbd(&seq, index);
-        pr.add_keyframe(
-            KeyframeId::from_index(i),
-            &image,
-            |u, v| depth.metres_at(u, v),
-            &camera,
-        )
-        .unwrap();
-        keyframes.push((index, world_from_camera));
-    }
     let (mut queries, mut accepted, mut precise) = (0, 0, 0);
     let mut errors = Vec::new();
     for index in (617..680).step_by(2) {

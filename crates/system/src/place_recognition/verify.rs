@@ -222,6 +222,37 @@ impl Estimator for RigidEstimator<'_> {
     }
 }
 
+/// The RANSAC of a verification (`estimator` over the matches, inlier threshold `gate`, seeded
+/// by the two keyframes' ids), accepted with at least Θ inliers; else the refusal to return.
+fn ransac_with_theta<E: Estimator>(
+    estimator: &E,
+    gate: f64,
+    config: &PlaceRecognitionConfig,
+    (query_id, old_id): (u32, u32),
+) -> Result<geom::ransac::RansacResult<E::Model>, Verification> {
+    let ransac_config = RansacConfig {
+        threshold: gate,
+        confidence: config.ransac_confidence,
+        max_iterations: config.ransac_max_iterations,
+        min_iterations: 10,
+        seed: hypothesis_seed(config, query_id, old_id),
+    };
+    let matches = estimator.num_data();
+    let Ok(result) = ransac(estimator, &ransac_config) else {
+        return Err(Verification::TooFewInliers {
+            matches,
+            inliers: 0,
+        });
+    };
+    if result.inliers.len() < config.min_inliers {
+        return Err(Verification::TooFewInliers {
+            matches,
+            inliers: result.inliers.len(),
+        });
+    }
+    Ok(result)
+}
+
 /// The seed of one hypothesis's RANSAC: the configured seed mixed with the two keyframes'
 /// ids, so that a verification gives the same result whatever was verified before it.
 fn hypothesis_seed(config: &PlaceRecognitionConfig, query: u32, old: u32) -> u64 {
@@ -315,25 +346,10 @@ fn verify_rigid(
     let source_cov: Vec<_> = matches.iter().map(|m| cov(old, m.train)).collect();
     let gate = config.inlier_gate();
     let estimator = RigidEstimator::new(&target, &target_cov, &source, &source_cov);
-    let ransac_config = RansacConfig {
-        threshold: gate,
-        confidence: config.ransac_confidence,
-        max_iterations: config.ransac_max_iterations,
-        min_iterations: 10,
-        seed: hypothesis_seed(config, query_id, old_id),
+    let result = match ransac_with_theta(&estimator, gate, config, (query_id, old_id)) {
+        Ok(result) => result,
+        Err(refused) => return refused,
     };
-    let Ok(result) = ransac(&estimator, &ransac_config) else {
-        return Verification::TooFewInliers {
-            matches: matches.len(),
-            inliers: 0,
-        };
-    };
-    if result.inliers.len() < config.min_inliers {
-        return Verification::TooFewInliers {
-            matches: matches.len(),
-            inliers: result.inliers.len(),
-        };
-    }
     let ransac_inliers = result.inliers.len();
     let mut pairs: Vec<DMatch> = result.inliers.iter().map(|&i| matches[i]).collect();
     let mut pose = result.model;
@@ -517,25 +533,10 @@ pub fn verify_absolute(
         sigma: &sigma,
     };
     let gate = lsq::chi2_quantile(2, config.inlier_probability).sqrt();
-    let ransac_config = RansacConfig {
-        threshold: gate,
-        confidence: config.ransac_confidence,
-        max_iterations: config.ransac_max_iterations,
-        min_iterations: 10,
-        seed: hypothesis_seed(config, query_id, old_id),
+    let result = match ransac_with_theta(&estimator, gate, config, (query_id, old_id)) {
+        Ok(result) => result,
+        Err(refused) => return refused,
     };
-    let Ok(result) = ransac(&estimator, &ransac_config) else {
-        return Verification::TooFewInliers {
-            matches: matches.len(),
-            inliers: 0,
-        };
-    };
-    if result.inliers.len() < config.min_inliers {
-        return Verification::TooFewInliers {
-            matches: matches.len(),
-            inliers: result.inliers.len(),
-        };
-    }
     let ransac_inliers = result.inliers.len();
     let pose = estimator
         .refine(&result.model, &result.inliers, 10)
