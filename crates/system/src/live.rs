@@ -131,7 +131,7 @@ pub struct Relocalisation {
 
 /// A map started after the camera was lost for `tracker.new_map_after` seconds
 /// ([`LiveSystem::start_map`]); monocular: a map bootstrapped again after tracking failed
-/// (`crate::mono`), which nothing joins to another.
+/// (`crate::mono`), joined to an earlier one when a later keyframe recognises its place.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NewMap {
     /// The frame it started at (its index in the sequence; monocular: the first frame of its

@@ -27,10 +27,14 @@
 //! `tracker.new_map_after` seconds, or lost before a map exists or without a vocabulary,
 //! starts again from the current frame, as when the bootstrap finds no geometry within
 //! `max_bootstrap_frames`: the frames in between are `lost` with the reason, and the new map
-//! has its own frame and scale (there is no merge of monocular maps yet). The outputs hold one
-//! map, as the stereo system's: the one with the most keyframes; the other maps' frames have
-//! no pose, and their states say which map tracked them (`RunResult::new_maps` lists the maps
-//! started after a loss).
+//! has its own frame and scale. Each keyframe of a later map is also looked up in the earlier
+//! maps' keyframe databases (`MonoSystem::join_maps`): three agreeing Sim(3)-verified
+//! detections of an earlier map's place join the two maps, by the similarity between their
+//! worlds. The maps are not merged for tracking; the outputs hold the group of joined maps with
+//! the most keyframes in the world of its largest map (the final trajectory, the keyframes and
+//! the points; the live trajectory only that map's frames, as tracked). The other maps' frames
+//! have no pose, and their states say which map tracked them (`RunResult::new_maps` lists the
+//! maps started after a loss and whether they were joined).
 
 use crate::config::{MonoConfig, SystemConfig};
 use crate::frame::CornerIndex;
@@ -312,6 +316,12 @@ pub struct MonoSystem {
     reference: Option<KeyframeId>,
     /// The relocalisations so far.
     relocalisations: Vec<Relocalisation>,
+    /// Earlier maps' places recognised from later maps' keyframes and accepted
+    /// ([`MonoSystem::join_maps`]): each joins a later map to an earlier one.
+    joins: Vec<MapJoin>,
+    /// The current map's latest run of mutually consistent detections of an earlier map's
+    /// place, not yet accepted.
+    join_chain: Vec<MapJoin>,
 }
 
 /// What a cached `refind` neighbourhood was computed at: (keyframes, loops, start keyframe).
@@ -350,6 +360,100 @@ struct LoopDetection {
     old: KeyframeId,
     /// `x_current = S·x_old` for camera-frame points.
     current_from_old: Sim3,
+}
+
+/// A place of an earlier map seen from a keyframe of a later one, started after tracking was
+/// lost ([`MonoSystem::join_maps`]). The two maps have worlds and scales of their own; the
+/// detection's similarity between the two keyframes gives the similarity between the worlds,
+/// as a loop's gives the correction in one map (thesis ch. 5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct MapJoin {
+    /// The later map, whose keyframe is `detection.current`.
+    map: usize,
+    /// The earlier map, whose keyframe is `detection.old`.
+    other: usize,
+    detection: LoopDetection,
+    /// Inliers of its verification.
+    inliers: usize,
+    /// The frames the two keyframes were made from.
+    frames: (usize, usize),
+}
+
+impl MapJoin {
+    /// `x_map = W·x_other` between the worlds of the later map (`map`, its graph) and the
+    /// earlier (`other`): `W = T_k⁻¹·S·T_old` with the keyframes' poses as the graphs have them.
+    fn map_from_other(&self, map: &SlamGraph<2>, other: &SlamGraph<2>) -> Option<Sim3> {
+        let k = map.pose(self.detection.current).ok()?;
+        let old = other.pose(self.detection.old).ok()?;
+        Some(
+            k.inverse()
+                .compose(&self.detection.current_from_old)
+                .compose(&old),
+        )
+    }
+}
+
+/// Each map joined to `world` through `links` (`(later, earlier, x_later = W·x_earlier)`), with
+/// `x_map = W·x_world`; `world` itself with the identity.
+fn joined_to(
+    world: usize,
+    links: &[(usize, usize, Sim3)],
+) -> std::collections::BTreeMap<usize, Sim3> {
+    let mut from_world = std::collections::BTreeMap::from([(world, Sim3::identity())]);
+    loop {
+        let mut grown = false;
+        for &(later, earlier, w) in links {
+            match (
+                from_world.get(&later).copied(),
+                from_world.get(&earlier).copied(),
+            ) {
+                (Some(l), None) => {
+                    from_world.insert(earlier, w.inverse().compose(&l));
+                    grown = true;
+                }
+                (None, Some(e)) => {
+                    from_world.insert(later, w.compose(&e));
+                    grown = true;
+                }
+                _ => {}
+            }
+        }
+        if !grown {
+            return from_world;
+        }
+    }
+}
+
+/// The maps written: of the groups of maps joined together ([`joined_to`]), the one with the
+/// most keyframes (the first map's on a tie); its world is its map with the most keyframes
+/// ([`largest_map`]). Returns that map and every map of the group with `x_map = W·x_world`.
+fn written_maps(
+    keyframes: &[(usize, usize)],
+    links: &[(usize, usize, Sim3)],
+) -> (usize, std::collections::BTreeMap<usize, Sim3>) {
+    let mut best: Option<(usize, usize)> = None;
+    for &(m, _) in keyframes {
+        let group = joined_to(m, links);
+        let total: usize = keyframes
+            .iter()
+            .filter(|(o, _)| group.contains_key(o))
+            .map(|(_, n)| n)
+            .sum();
+        if best.is_none_or(|(_, t)| total > t) {
+            best = Some((m, total));
+        }
+    }
+    let Some((m, _)) = best else {
+        return (FIRST_MAP, joined_to(FIRST_MAP, links));
+    };
+    let group = joined_to(m, links);
+    let world = largest_map(
+        keyframes
+            .iter()
+            .copied()
+            .filter(|(o, _)| group.contains_key(o)),
+    );
+    (world, joined_to(world, links))
 }
 
 /// Detections in a row that must agree before a loop is accepted (3: a repetitive place —
@@ -557,18 +661,28 @@ fn correct_loops(
 }
 
 /// Whether detection `b` agrees with the earlier `a` through the map's relative poses (the
-/// odometry is locally accurate on both sides of a loop).
-fn loops_agree(graph: &SlamGraph<2>, a: &LoopDetection, b: &LoopDetection) -> bool {
-    let rel = |x: KeyframeId, y: KeyframeId| -> Option<Sim3> {
-        Some(graph.pose(x).ok()?.compose(&graph.pose(y).ok()?.inverse()))
+/// odometry is locally accurate on both sides of a loop). `graph` holds the current keyframes
+/// and `old_graph` the old ones: the same map for a loop, an earlier map for a join
+/// ([`MapJoin`]).
+fn loops_agree(
+    graph: &SlamGraph<2>,
+    old_graph: &SlamGraph<2>,
+    a: &LoopDetection,
+    b: &LoopDetection,
+) -> bool {
+    let rel = |g: &SlamGraph<2>, x: KeyframeId, y: KeyframeId| -> Option<Sim3> {
+        Some(g.pose(x).ok()?.compose(&g.pose(y).ok()?.inverse()))
     };
-    let (Some(cur), Some(old)) = (rel(b.current, a.current), rel(a.old, b.old)) else {
+    let (Some(cur), Some(old)) = (
+        rel(graph, b.current, a.current),
+        rel(old_graph, a.old, b.old),
+    ) else {
         return false;
     };
     // x_kb = T_kb,ka · S_a · T_olda,oldb · x_oldb.
     let predicted = cur.compose(&a.current_from_old).compose(&old);
     let delta = predicted.inverse().compose(&b.current_from_old);
-    let mut depths: Vec<f64> = slam::loop_closure::constraint::depth_samples(graph, b.old)
+    let mut depths: Vec<f64> = slam::loop_closure::constraint::depth_samples(old_graph, b.old)
         .into_iter()
         .map(|(_, d)| d)
         .collect();
@@ -617,6 +731,8 @@ impl MonoSystem {
             lost: None,
             reference: None,
             relocalisations: Vec::new(),
+            joins: Vec::new(),
+            join_chain: Vec::new(),
             warnings: Vec::new(),
         })
     }
@@ -680,7 +796,7 @@ impl MonoSystem {
                 // Consistent with the last detection, if that was a few keyframes ago.
                 let follows = loops.chain.last().is_some_and(|last| {
                     k.index() - last.current.index() <= LOOP_CONSISTENCY
-                        && loops_agree(&map.graph, last, &detection)
+                        && loops_agree(&map.graph, &map.graph, last, &detection)
                 });
                 if !follows {
                     loops.chain.clear();
@@ -716,6 +832,90 @@ impl MonoSystem {
         }
         if accepted_now && self.config.mono.correct_live {
             self.correct_live(frame);
+        }
+    }
+
+    /// A new keyframe `k` of a map started after tracking was lost, against the keyframe
+    /// databases of the earlier maps (monocular map joining; ORB-SLAM3's Atlas merges its maps
+    /// on such a detection): its ORB words scored against each earlier map's keyframes, the best
+    /// verified by the 3-point Sim(3) RANSAC on regressed depths as a loop is
+    /// ([`PlaceRecognition::relocalise`] with the keyframe's features and depth samples). As a
+    /// loop, a join is accepted once [`LOOP_CONSISTENCY`] detections in a row agree
+    /// ([`loops_agree`], across the two maps): a place that only looks like one of the earlier
+    /// map's is seldom seen so three times over. After that, each later detection that agrees
+    /// with the last accepted one is kept too: the outputs take the similarity between the
+    /// two worlds from the one with the most inliers, the best measured. The maps stay apart
+    /// while the run goes on; the outputs hold the joined maps in one world
+    /// ([`written_maps`]).
+    fn join_maps(&mut self, k: KeyframeId) {
+        let current = self.lost_maps;
+        let (Some(loops), Some(explorer)) = (self.loops.as_ref(), self.explorer.as_ref()) else {
+            return;
+        };
+        let Some(features) = loops.place.features(k) else {
+            return;
+        };
+        let map = explorer.map();
+        for earlier in &self.finished {
+            let accepted = self
+                .joins
+                .iter()
+                .rfind(|j| j.map == current && j.other == earlier.map)
+                .copied();
+            let Some(place) = &earlier.place else {
+                continue;
+            };
+            let Some(c) = place.relocalise(k.index() as u32, features) else {
+                continue;
+            };
+            let join = MapJoin {
+                map: current,
+                other: earlier.map,
+                detection: LoopDetection {
+                    current: k,
+                    old: c.old,
+                    current_from_old: c.query_from_old,
+                },
+                inliers: c.inliers.len(),
+                frames: (
+                    map.keyframe(k).frame,
+                    earlier
+                        .keyframes
+                        .iter()
+                        .find(|r| r.id == c.old.index())
+                        .map_or(usize::MAX, |r| r.frame_index),
+                ),
+            };
+            if let Some(last) = accepted {
+                if loops_agree(&map.graph, &earlier.graph, &last.detection, &join.detection) {
+                    self.joins.push(join);
+                }
+                continue;
+            }
+            let follows = self.join_chain.last().is_some_and(|last| {
+                last.other == join.other
+                    && k.index() - last.detection.current.index() <= LOOP_CONSISTENCY
+                    && loops_agree(&map.graph, &earlier.graph, &last.detection, &join.detection)
+            });
+            if !follows {
+                self.join_chain.clear();
+            }
+            self.join_chain.push(join);
+            if self.join_chain.len() >= LOOP_CONSISTENCY {
+                for j in self.join_chain.drain(..) {
+                    self.events.push(LoopEvent {
+                        keyframe: j.detection.current,
+                        old: j.detection.old,
+                        frames: j.frames,
+                        kind: "merge",
+                        scale: Some(j.detection.current_from_old.scale()),
+                        correction: None,
+                        evidence: None,
+                    });
+                    self.joins.push(j);
+                }
+            }
+            return;
         }
     }
 
@@ -849,27 +1049,34 @@ impl MonoSystem {
 
     /// Ends the current map and starts again at the next frame.
     fn restart(&mut self, why: String) {
+        let mut closed = false;
         if let Some(explorer) = self.explorer.take() {
             if !explorer.map().keyframes.is_empty() {
                 let outputs = self.close_map(explorer);
                 self.finished.push(outputs);
                 self.lost_maps += 1;
+                closed = true;
             }
             self.warnings.push(why);
         }
+        self.join_chain.clear();
         self.tracks.reset();
         self.images.clear();
         self.neighbourhood = None;
         self.bootstrap_first = None;
         // A new map numbers its keyframes anew: the database starts empty, and the loops
-        // found in the old map are gone with it.
+        // found in the old map are gone with it. The old map keeps its database, for the
+        // later maps to join it by (`join_maps`).
         if let Some(loops) = self.loops.as_mut()
             && let Ok(place) = PlaceRecognition::new(
                 loops.place.vocabulary().clone(),
                 loops.place.config().clone(),
             )
         {
-            loops.place = place;
+            let old = std::mem::replace(&mut loops.place, place);
+            if closed && let Some(outputs) = self.finished.last_mut() {
+                outputs.place = Some(old);
+            }
             loops.edges.clear();
             loops.chain.clear();
             loops.accepted = false;
@@ -1033,6 +1240,7 @@ impl MonoSystem {
             points,
             graph,
             loops: std::mem::take(&mut self.events),
+            place: None,
         }
     }
 }
@@ -1372,6 +1580,13 @@ impl LiveRun<2> for MonoSystem {
                     .timings
                     .record("keyframe: place recognition", t.elapsed());
             }
+            if !self.finished.is_empty() {
+                let t = Instant::now();
+                self.join_maps(k);
+                self.record
+                    .timings
+                    .record("keyframe: join earlier maps", t.elapsed());
+            }
         }
         let (state, pose, keyframe, stats) = match outcome {
             Ok(o) => {
@@ -1489,10 +1704,33 @@ impl LiveRun<2> for MonoSystem {
             maps.push(outputs);
         }
         let mut warnings = std::mem::take(&mut self.warnings);
-        // The map written: the one with the most keyframes, the first on a tie (as the stereo
-        // and RGB-D system's, and ORB-SLAM3's biggest map). Another map's frames have no pose
-        // in its world: each map has its own frame and scale.
-        let world = largest_map(maps.iter().map(|m| (m.map, m.keyframes.len())));
+        // The maps written: the group of maps joined together with the most keyframes, in the
+        // world of its map with the most keyframes (a lone map: the one with the most
+        // keyframes, the first on a tie, as the stereo and RGB-D system's, and ORB-SLAM3's
+        // biggest map). Another map's frames have no pose in its world: each map has its own
+        // frame and scale. A join's similarity is taken from its detection with the most
+        // inliers, with the two maps' keyframe poses as they are at the end.
+        let mut links: Vec<(usize, usize, Sim3)> = Vec::new();
+        for j in &self.joins {
+            if links.iter().any(|l| (l.0, l.1) == (j.map, j.other)) {
+                continue;
+            }
+            let best = self
+                .joins
+                .iter()
+                .filter(|o| (o.map, o.other) == (j.map, j.other))
+                .max_by_key(|o| o.inliers)
+                .expect("j itself");
+            let graph = |m: usize| maps.iter().find(|o| o.map == m).map(|o| &o.graph);
+            if let (Some(later), Some(earlier)) = (graph(best.map), graph(best.other))
+                && let Some(w) = best.map_from_other(later, earlier)
+            {
+                links.push((best.map, best.other, w));
+            }
+        }
+        let keyframe_counts: Vec<(usize, usize)> =
+            maps.iter().map(|m| (m.map, m.keyframes.len())).collect();
+        let (world, joined) = written_maps(&keyframe_counts, &links);
         if world != FIRST_MAP {
             let dropped = write_map(
                 world,
@@ -1509,9 +1747,14 @@ impl LiveRun<2> for MonoSystem {
             };
             warnings.push(format!(
                 "the map written is map {world}, which holds more keyframes ({}) than the first \
-                 ({}): the first map's {dropped} frames have no pose in the trajectories",
+                 ({}): the first map's {dropped} frames have no pose in the {}",
                 keyframes_of(world),
-                keyframes_of(FIRST_MAP)
+                keyframes_of(FIRST_MAP),
+                if joined.contains_key(&FIRST_MAP) {
+                    "live trajectory (the first map is joined to it: they are in the final one)"
+                } else {
+                    "trajectories"
+                }
             ));
         }
         // The maps started after a loss: where, how long after the last pose, how many frames.
@@ -1529,9 +1772,34 @@ impl LiveRun<2> for MonoSystem {
                 frame: first,
                 lost_for: at(first) - at(last),
                 map: m.map,
-                joined: m.map == world,
+                joined: joined.contains_key(&m.map),
                 frames: self.off_first.iter().filter(|o| o.1 == m.map).count(),
             });
+        }
+        for j in &self.joins {
+            if let Some(first) = self
+                .joins
+                .iter()
+                .find(|o| (o.map, o.other) == (j.map, j.other))
+                && first == j
+            {
+                warnings.push(format!(
+                    "frame {}: map {} recognised a place of map {} (frame {}; Sim(3) scale {:.3}, \
+                     {} inliers, {LOOP_CONSISTENCY} agreeing detections): the two maps are \
+                     joined in the outputs{}",
+                    j.frames.0,
+                    j.map,
+                    j.other,
+                    j.frames.1,
+                    j.detection.current_from_old.scale(),
+                    j.inliers,
+                    if joined.contains_key(&j.map) {
+                        ""
+                    } else {
+                        " (not the maps written)"
+                    }
+                ));
+            }
         }
         for m in &new_maps {
             let NewMap {
@@ -1546,16 +1814,23 @@ impl LiveRun<2> for MonoSystem {
                     "frame {frame}: tracking lost {lost_for:.1} s before; a new map (map {map}) \
                      was initialised there: the map written"
                 )
+            } else if joined.contains_key(map) {
+                format!(
+                    "frame {frame}: tracking lost {lost_for:.1} s before; a new map (map {map}) \
+                     was initialised there and later joined to map {world}: its {frames} frames \
+                     are in the final trajectory (not in the live one), its keyframes and points \
+                     in the map written"
+                )
             } else {
                 format!(
                     "frame {frame}: tracking lost {lost_for:.1} s before; a new map (map {map}) \
-                     was initialised there, with a frame and a scale of its own (monocular maps \
-                     are not merged yet): its {frames} frames have no pose in the \
-                     trajectories, and its keyframes and points are not in the map written"
+                     was initialised there, with a frame and a scale of its own, and no place \
+                     of it was recognised from the maps written or theirs from it: its {frames} \
+                     frames have no pose in the trajectories, and its keyframes and points are \
+                     not in the map written"
                 )
             });
         }
-        let written = maps.into_iter().find(|m| m.map == world);
         let to_trajectory = |poses: &[(usize, Se3)]| {
             let mut t = Trajectory::default();
             for (frame, camera_from_world) in poses {
@@ -1566,27 +1841,75 @@ impl LiveRun<2> for MonoSystem {
             }
             t
         };
-        let (final_trajectory, alternatives, graph, loops) = match written {
-            Some(m) => {
-                self.record.keyframes = m.keyframes;
-                self.record.points = m.points;
-                (
-                    to_trajectory(&m.trajectories[0].1),
-                    m.trajectories
-                        .iter()
-                        .skip(1)
-                        .map(|(name, poses)| (*name, to_trajectory(poses)))
-                        .collect(),
-                    m.graph,
-                    m.loops,
-                )
-            }
-            None => (
+        // The maps written, the world's first, each with `x_map = W·x_world`.
+        let (mut written, others): (Vec<MapOutputs>, Vec<MapOutputs>) =
+            maps.into_iter().partition(|m| joined.contains_key(&m.map));
+        drop(others);
+        written.sort_by_key(|m| (m.map != world, m.map));
+        let (final_trajectory, alternatives, graph, loops) = if written.is_empty() {
+            (
                 Trajectory::default(),
                 Vec::new(),
                 SlamGraph::default(),
                 std::mem::take(&mut self.events),
-            ),
+            )
+        } else {
+            let in_world = |w: &Sim3, camera_from_map: &Se3| {
+                rigid_from_similarity(&Sim3::from_se3(camera_from_map).compose(w))
+            };
+            // Each trajectory of the world's map, with the joined maps' frames in its world
+            // (their trajectory of the same name, else their final one).
+            let names: Vec<&'static str> =
+                written[0].trajectories.iter().map(|(n, _)| *n).collect();
+            let mut trajectories: Vec<(&'static str, Trajectory)> = Vec::new();
+            for name in names {
+                let mut poses: Vec<(usize, Se3)> = Vec::new();
+                for m in &written {
+                    let w = joined[&m.map];
+                    let own = m
+                        .trajectories
+                        .iter()
+                        .find(|(n, _)| *n == name)
+                        .unwrap_or(&m.trajectories[0]);
+                    poses.extend(own.1.iter().map(|(f, t)| (*f, in_world(&w, t))));
+                }
+                poses.sort_by_key(|(f, _)| *f);
+                trajectories.push((name, to_trajectory(&poses)));
+            }
+            let mut keyframes = Vec::new();
+            let mut points = Vec::new();
+            let mut loops = Vec::new();
+            let mut graph = SlamGraph::default();
+            for m in written {
+                let w = joined[&m.map];
+                let world_from_map = w.inverse();
+                // Keyframe ids follow on from the maps before (each map numbers its own).
+                let offset = keyframes
+                    .iter()
+                    .map(|k: &KeyframeRecord| k.id + 1)
+                    .max()
+                    .unwrap_or(0);
+                keyframes.extend(m.keyframes.into_iter().map(|k| KeyframeRecord {
+                    id: k.id + offset,
+                    world_from_camera: in_world(&w, &k.world_from_camera.inverse()).inverse(),
+                    ..k
+                }));
+                points.extend(m.points.into_iter().map(|p| MapPoint {
+                    position: world_from_map.act(&p.position),
+                    ..p
+                }));
+                loops.extend(m.loops);
+                if m.map == world {
+                    graph = m.graph;
+                }
+            }
+            keyframes.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+            loops.sort_by_key(|l| l.frames.0);
+            self.record.keyframes = keyframes;
+            self.record.points = points;
+            let mut trajectories = trajectories.into_iter();
+            let (_, final_trajectory) = trajectories.next().expect("a trajectory per map");
+            (final_trajectory, trajectories.collect(), graph, loops)
         };
         if self.rejected_loops > 0 {
             warnings.push(format!(
@@ -1627,6 +1950,8 @@ struct MapOutputs {
     graph: SlamGraph<2>,
     /// Its loops (keyframe ids are the map's own: each map numbers its keyframes anew).
     loops: Vec<LoopEvent>,
+    /// Its keyframe database, once the map is closed (for the later maps to join it by).
+    place: Option<PlaceRecognition>,
 }
 
 #[cfg(test)]
@@ -1687,6 +2012,36 @@ mod tests {
     }
 
     #[test]
+    fn the_maps_written_are_the_joined_group_with_the_most_keyframes() {
+        let sim = |x: f64, s: f64| {
+            Sim3::new(
+                lie::So3::exp(&Vector3::new(0.1, -0.2, x)),
+                Vector3::new(x, 1.0, -2.0),
+                s,
+            )
+            .unwrap()
+        };
+        // Map 1 joined to 0, map 2 to 1; map 3 alone.
+        let (w10, w21) = (sim(0.3, 0.8), sim(-0.5, 1.7));
+        let links = [(1, 0, w10), (2, 1, w21)];
+        let (world, group) = written_maps(&[(0, 20), (1, 45), (2, 10), (3, 30)], &links);
+        assert_eq!(world, 1);
+        assert_eq!(group.keys().copied().collect::<Vec<_>>(), vec![0, 1, 2]);
+        // x_map = W·x_world for each, composed through the links.
+        let x = Vector3::new(0.4, -1.2, 3.0);
+        let close = |a: Vector3<f64>, b: Vector3<f64>| (a - b).norm() < 1e-9;
+        assert!(close(group[&1].act(&x), x));
+        assert!(close(w10.act(&group[&0].act(&x)), x));
+        assert!(close(group[&2].act(&x), w21.act(&x)));
+        // A lone map with more keyframes than the joined group is written alone.
+        let (world, group) = written_maps(&[(0, 20), (1, 20), (2, 50)], &[(1, 0, w10)]);
+        assert_eq!((world, group.len()), (2, 1));
+        // Without links: the largest map, the first on a tie.
+        let (world, _) = written_maps(&[(0, 20), (1, 20)], &[]);
+        assert_eq!(world, 0);
+    }
+
+    #[test]
     fn successive_detections_agree_only_when_the_odometry_carries_one_into_the_other() {
         let g = corridor(20);
         let id = KeyframeId::from_index;
@@ -1703,13 +2058,13 @@ mod tests {
             current_from_old,
         };
         let a = detection(15, 2, s(15, 2));
-        assert!(loops_agree(&g, &a, &detection(16, 3, s(16, 3))));
+        assert!(loops_agree(&g, &g, &a, &detection(16, 3, s(16, 3))));
         // A second detection that jumps to an unrelated place (keyframe 9) does not agree.
-        assert!(!loops_agree(&g, &a, &detection(16, 9, s(16, 3))));
+        assert!(!loops_agree(&g, &g, &a, &detection(16, 9, s(16, 3))));
         // Nor one whose scale differs by 30 %.
         let scaled = Sim3::new(lie::So3::identity(), Vector3::zeros(), 1.3)
             .unwrap()
             .compose(&s(16, 3));
-        assert!(!loops_agree(&g, &a, &detection(16, 3, scaled)));
+        assert!(!loops_agree(&g, &g, &a, &detection(16, 3, scaled)));
     }
 }

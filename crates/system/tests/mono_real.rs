@@ -399,3 +399,98 @@ fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
         "{relocalised} m, never lost {never} m"
     );
 }
+
+/// Monocular maps joined by place recognition: the same 7-Scenes cut (frames 301–399), but with
+/// `tracker.new_map_after` 0, so that the lost camera starts a new map at once instead of
+/// relocalising. When the new map's keyframes come back to places of the first (the camera
+/// sees the first map's side of the table again around frame 480), three agreeing Sim(3)
+/// detections join the two maps: the final trajectory then holds the frames of both in one
+/// world, about as accurately as the written map's own frames are alone (a wrong similarity
+/// between the two worlds, in scale above all, would put the first map's frames metres off).
+#[test]
+fn a_new_monocular_map_is_joined_to_the_first_by_place_recognition() {
+    let Some(path) = paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
+    let camera = *sequence.info().camera.pinhole();
+    let vocabulary =
+        std::sync::Arc::new(system::place_recognition::vocabulary::default_vocabulary().unwrap());
+    let mut config = SystemConfig::default();
+    config.tracker.new_map_after = 0.0;
+    let mut system = MonoSystem::new(camera, config, "cut")
+        .unwrap()
+        .with_loop_closure(vocabulary)
+        .unwrap();
+    let mut truth = std::collections::HashMap::new();
+    let cut: Vec<usize> = (0..=300).chain(400..sequence.len()).collect();
+    for &k in &cut {
+        let frame = sequence.read(k).unwrap().unwrap();
+        truth.insert(
+            frame.timestamp.to_bits(),
+            frame.world_from_camera.expect("ground truth"),
+        );
+        system.process(frame).unwrap();
+    }
+    let r = system.finish(false).unwrap();
+    println!("new maps: {:?}", r.new_maps);
+    for w in &r.warnings {
+        println!("{w}");
+    }
+    assert_eq!(r.new_maps.len(), 1, "{:?}", r.new_maps);
+    assert!(r.new_maps[0].joined, "{:?}", r.new_maps);
+    let merge = r
+        .loops
+        .iter()
+        .find(|l| l.kind == "merge")
+        .expect("a merge event");
+    assert!(merge.frames.0 >= 400 && merge.frames.1 <= 300, "{merge:?}");
+    // Sim(3) ATE of a trajectory's frames (those with ground truth).
+    let score = |timestamps: &[f64], poses: &[Se3]| {
+        let (r, e): (Vec<Se3>, Vec<Se3>) = timestamps
+            .iter()
+            .zip(poses)
+            .filter_map(|(t, p)| Some((*truth.get(&t.to_bits())?, *p)))
+            .unzip();
+        (
+            r.len(),
+            ate(&r, &e, Alignment::Sim3).unwrap().translation.rmse,
+        )
+    };
+    let t = &r.final_trajectory;
+    let (joined, joined_ate) = score(&t.timestamps, &t.world_from_body);
+    // The written map's frames alone: those after the loss.
+    let lost_at = r.new_maps[0].frame;
+    let first_new = cut.iter().position(|&k| k >= 400).unwrap();
+    let alone: Vec<usize> = (0..t.timestamps.len())
+        .filter(|&i| {
+            r.record
+                .frames
+                .iter()
+                .position(|f| f.timestamp == t.timestamps[i])
+                .is_some_and(|p| p >= first_new)
+        })
+        .collect();
+    let (n_alone, alone_ate) = score(
+        &alone.iter().map(|&i| t.timestamps[i]).collect::<Vec<_>>(),
+        &alone
+            .iter()
+            .map(|&i| t.world_from_body[i])
+            .collect::<Vec<_>>(),
+    );
+    println!(
+        "new map at frame {lost_at}; joined at frame {} to frame {}: final trajectory {joined} of \
+         {} frames, ATE {:.2} cm; the written map's frames alone: {n_alone}, {:.2} cm",
+        merge.frames.0,
+        merge.frames.1,
+        cut.len(),
+        joined_ate * 100.0,
+        alone_ate * 100.0
+    );
+    assert!(joined * 100 >= cut.len() * 95, "{joined} of {}", cut.len());
+    assert!(joined >= n_alone + 250, "{joined} against {n_alone} alone");
+    assert!(
+        joined_ate <= 1.25 * alone_ate + 0.01,
+        "{joined_ate} m joined, {alone_ate} m alone"
+    );
+}
