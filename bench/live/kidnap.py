@@ -15,11 +15,14 @@ courtyard) under OUT/sequences:
 - the rendered courtyard (stereo, `dwslam render courtyard --sensor stereo --layout kitti`),
   frames 1500-2199 cut: half a lap skipped;
 - the courtyard, frames 300-699 cut: a 21 m jump in the first lap, to the part of the courtyard
-  the map has not seen; the camera comes back to the mapped part about 20 s later.
+  the map has not seen; the camera comes back to the mapped part about 20 s later (monocular:
+  a new map starts after 3 s, and is joined to the first when it sees the first's places).
 
 7-Scenes runs on its frames with depth (dwslam `--depth-frames-only`, ORB-SLAM3 RGB-D on
 associations.txt), and monocular on all its colour frames with the same cuts (dwslam `--sensor
-mono`, ORB-SLAM3 mono), as does the courtyard's first cut on its left images. dwslam runs deterministic, ORB-SLAM3 `--orb-runs` times (it is not
+mono`, ORB-SLAM3 mono), as do the courtyard's cuts on its left images; the 301-399 cut once more
+with `tracker.new_map_after: 0` (dwslam only), so that the monocular camera starts a new map at
+once and the two maps are joined by place recognition. dwslam runs deterministic, ORB-SLAM3 `--orb-runs` times (it is not
 deterministic), each pinned to one core. ATE by evo_ape -a (SE(3); monocular -a -s, Sim(3), one
 alignment for all the frames) over the frames each system gave a pose, live and after the run, beside the fraction of frames tracked (dwslam: good or weak,
 including frames tracked in a new map not joined to the first yet, which have no pose in the
@@ -156,6 +159,13 @@ cases.append(("7-Scenes mono, frames 301-619 cut (a jump into the map)", "7scene
 seq, root = seven_scenes_cut("7scenes-jump-off-map", 301, 399)
 cases.append(("7-Scenes mono, frames 301-399 cut (a jump off the map)", "7scenes-mono-jump-off-map",
               seq, ["--sensor", "mono"], "7scenes-mono", ["--data", root]))
+# The same cut with a new map at once instead of relocalisation: the two maps joined by place
+# recognition (ORB-SLAM3 is not run again: its rows are the case above).
+new_map_at_once = os.path.join(a.out, "new-map-at-once.yaml")
+with open(new_map_at_once, "w") as f:
+    f.write("tracker:\n  new_map_after: 0\n")
+cases.append(("7-Scenes mono, frames 301-399 cut, `tracker.new_map_after: 0` (a new map at once, joined later)",
+              "7scenes-mono-jump-off-map-new-map", seq, ["--sensor", "mono", "--config", new_map_at_once], None, []))
 if a.rendered:
     courtyard = os.path.join(a.rendered, "courtyard-stereo")
     if not os.path.isdir(courtyard):
@@ -169,6 +179,8 @@ if a.rendered:
     seq = kitti_cut("courtyard-stereo-cut-first-lap", courtyard, 300, 699)
     cases.append(("rendered courtyard stereo, frames 300-699 cut (a jump off the map in the first lap)",
                   "courtyard-cut-first-lap", seq, ["--sensor", "stereo"], "kitti-dir-stereo", ["--dir", seq]))
+    cases.append(("rendered courtyard mono, frames 300-699 cut (a jump off the map in the first lap)",
+                  "courtyard-mono-cut-first-lap", seq, ["--sensor", "mono"], "kitti-dir", ["--dir", seq]))
 
 if a.only:
     cases = [c for c in cases if a.only in c[0]]
@@ -181,16 +193,18 @@ print("\n".join(table), flush=True)
 results = {}
 for title, name, seq, extra, peer_seq, peer_extra in cases:
     d = dwslam(name, seq, extra)
-    o = [orbslam3(name, peer_seq, peer_extra, i) for i in range(a.orb_runs)]
+    o = [orbslam3(name, peer_seq, peer_extra, i) for i in range(a.orb_runs)] if peer_seq else []
     results[name] = {"dwslam": d, "orbslam3": o}
     ok = [r for r in o if "error" not in r]
     rows = [f"| {title} | dwslam (deterministic) | {cm(d['ate_live'])} | {cm(d['ate_final'])} | "
             f"{100 * d['tracked']:.1f} % | {100 * d['with_pose'][0]:.1f} % / {100 * d['with_pose'][1]:.1f} % | "
             f"{', '.join(f'{f} ← {k}' for f, k in d['relocalisations']) or '—'} | "
-            f"{', '.join(f'{f}: ' + ('yes' if j else 'no') for f, j in d['new_maps']) or '—'} |",
+            f"{', '.join(f'{f}: ' + ('yes' if j else 'no') for f, j in d['new_maps']) or '—'} |"]
+    if peer_seq:
+        rows.append(
             f"| | ORB-SLAM3 ({len(ok)} runs) | {rng([r['ate_live'] for r in ok if r['ate_live'] is not None])} | "
             f"{rng([r['ate_final'] for r in ok if r['ate_final'] is not None])} | "
-            f"{', '.join('%.1f %%' % (100 * r['tracked']) for r in ok if r['tracked'] is not None)} | | | |"]
+            f"{', '.join('%.1f %%' % (100 * r['tracked']) for r in ok if r['tracked'] is not None)} | | | |")
     print("\n".join(rows), flush=True)
     table += rows
 with open(os.path.join(a.out, "table.md"), "w") as f:

@@ -460,10 +460,14 @@ fn drive<S: LiveRun<N>, const N: usize>(
             0 => String::new(),
             1 => ", 1 relocalisation".into(),
             n => format!(", {n} relocalisations"),
-        } + &match result.new_maps.len() {
-            0 => String::new(),
-            1 => ", 1 new map after a loss".into(),
-            n => format!(", {n} new maps after losses"),
+        } + &match (
+            result.new_maps.len(),
+            result.new_maps.iter().filter(|m| m.joined).count(),
+        ) {
+            (0, _) => String::new(),
+            (1, 1) => ", 1 new map after a loss (in the map written)".into(),
+            (1, _) => ", 1 new map after a loss".into(),
+            (n, j) => format!(", {n} new maps after losses ({j} in the map written)"),
         },
         if stop.load(Ordering::SeqCst) {
             " — interrupted"
@@ -592,12 +596,23 @@ fn drive<S: LiveRun<N>, const N: usize>(
         }
     }
     for l in result.loops.iter().filter(|l| l.scale.is_some()) {
-        println!(
-            "loop: frame {} sees the place of frame {}, scale drift {:.3}",
-            l.frames.0,
-            l.frames.1,
-            l.scale.unwrap_or(1.0)
-        );
+        if l.kind == "merge" {
+            // Two monocular maps: the scale is that of one map's world in the other's.
+            println!(
+                "map join: frame {} sees the place of frame {} of an earlier map, scale {:.3} \
+                 between the two maps",
+                l.frames.0,
+                l.frames.1,
+                l.scale.unwrap_or(1.0)
+            );
+        } else {
+            println!(
+                "loop: frame {} sees the place of frame {}, scale drift {:.3}",
+                l.frames.0,
+                l.frames.1,
+                l.scale.unwrap_or(1.0)
+            );
+        }
     }
     write_frame_stats(&settings.out.join(FRAME_STATS_FILE), &result)?;
     write_optimisation_stats(&settings.out.join(OPTIMISATION_STATS_FILE), &result)?;
