@@ -1842,9 +1842,10 @@ impl LiveRun<2> for MonoSystem {
             t
         };
         // The maps written, the world's first, each with `x_map = W·x_world`.
-        let (mut written, others): (Vec<MapOutputs>, Vec<MapOutputs>) =
-            maps.into_iter().partition(|m| joined.contains_key(&m.map));
-        drop(others);
+        let mut written: Vec<MapOutputs> = maps
+            .into_iter()
+            .filter(|m| joined.contains_key(&m.map))
+            .collect();
         written.sort_by_key(|m| (m.map != world, m.map));
         let (final_trajectory, alternatives, graph, loops) = if written.is_empty() {
             (
