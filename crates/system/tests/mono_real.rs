@@ -319,21 +319,31 @@ fn a_purely_rotating_camera_is_never_initialised_and_says_why() {
 /// and its poses after the loss agree with the ground truth under the similarity of its poses
 /// before it (a new map would have a frame and a scale of its own) about as well as those of
 /// a camera never lost (the same frames without the cut) do.
-#[test]
-fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
-    let Some(path) = paths::require("seven_scenes_redkitchen_1000") else {
-        return;
-    };
+/// 7-Scenes (`None` without the data) and a monocular system for it with `config` and the
+/// shipped vocabulary, made by the returned function.
+fn seven_scenes_with_loops() -> Option<(Sequence, impl Fn(SystemConfig) -> MonoSystem)> {
+    let path = paths::require("seven_scenes_redkitchen_1000")?;
     let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
     let camera = *sequence.info().camera.pinhole();
     let vocabulary =
         std::sync::Arc::new(system::place_recognition::vocabulary::default_vocabulary().unwrap());
-    let mut truth = std::collections::HashMap::new();
-    let mut run = |indices: &[usize]| {
-        let mut system = MonoSystem::new(camera, SystemConfig::default(), "cut")
+    let system = move |config| {
+        MonoSystem::new(camera, config, "cut")
             .unwrap()
             .with_loop_closure(vocabulary.clone())
-            .unwrap();
+            .unwrap()
+    };
+    Some((sequence, system))
+}
+
+#[test]
+fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
+    let Some((sequence, new_system)) = seven_scenes_with_loops() else {
+        return;
+    };
+    let mut truth = std::collections::HashMap::new();
+    let mut run = |indices: &[usize]| {
+        let mut system = new_system(SystemConfig::default());
         for &k in indices {
             let frame = sequence.read(k).unwrap().unwrap();
             truth.insert(k, frame.world_from_camera.expect("ground truth"));
@@ -409,19 +419,12 @@ fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
 /// between the two worlds, in scale above all, would put the first map's frames metres off).
 #[test]
 fn a_new_monocular_map_is_joined_to_the_first_by_place_recognition() {
-    let Some(path) = paths::require("seven_scenes_redkitchen_1000") else {
+    let Some((sequence, new_system)) = seven_scenes_with_loops() else {
         return;
     };
-    let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
-    let camera = *sequence.info().camera.pinhole();
-    let vocabulary =
-        std::sync::Arc::new(system::place_recognition::vocabulary::default_vocabulary().unwrap());
     let mut config = SystemConfig::default();
     config.tracker.new_map_after = 0.0;
-    let mut system = MonoSystem::new(camera, config, "cut")
-        .unwrap()
-        .with_loop_closure(vocabulary)
-        .unwrap();
+    let mut system = new_system(config);
     let mut truth = std::collections::HashMap::new();
     let cut: Vec<usize> = (0..=300).chain(400..sequence.len()).collect();
     for &k in &cut {

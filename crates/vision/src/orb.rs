@@ -468,19 +468,25 @@ mod tests {
         assert!(good as f32 > 0.9 * m.len() as f32, "{good}/{}", m.len());
     }
 
+    /// `n` pseudo-random descriptors from the LCG state `x`, each word passed through `bits`.
+    fn descriptors(x: &mut u64, n: usize, bits: impl Fn(u64) -> u64) -> Vec<Descriptor> {
+        (0..n)
+            .map(|_| {
+                std::array::from_fn(|_| {
+                    *x = x
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    bits(*x)
+                })
+            })
+            .collect()
+    }
+
     #[test]
     fn popcnt_and_scalar_matching_agree() {
         let mut x = 3u64;
-        let mut d = || -> Descriptor {
-            std::array::from_fn(|_| {
-                x = x
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                x
-            })
-        };
-        let q: Vec<Descriptor> = (0..60).map(|_| d()).collect();
-        let mut t: Vec<Descriptor> = (0..80).map(|_| d()).collect();
+        let q = descriptors(&mut x, 60, |w| w);
+        let mut t = descriptors(&mut x, 80, |w| w);
         t[7] = q[3];
         t[9] = [q[5][0] ^ 1, q[5][1], q[5][2], q[5][3]];
         let fast = match_descriptors(&q, &t, 100, 0.9, true);
@@ -496,16 +502,9 @@ mod tests {
     fn one_pass_cross_check_equals_two_passes() {
         // Sparse descriptors (a few bits each): many equal distances, so the ties count.
         let mut x = 11u64;
-        let mut d = || -> Descriptor {
-            std::array::from_fn(|_| {
-                x = x
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                x & (x >> 17) & (x >> 31) & (x >> 45)
-            })
-        };
-        let q: Vec<Descriptor> = (0..70).map(|_| d()).collect();
-        let t: Vec<Descriptor> = (0..90).map(|_| d()).collect();
+        let sparse = |w: u64| w & (w >> 17) & (w >> 31) & (w >> 45);
+        let q = descriptors(&mut x, 70, sparse);
+        let t = descriptors(&mut x, 90, sparse);
         let (fwd, back) = nearest_both_ways(&q, &t);
         assert_eq!(fwd, nearest(&q, &t));
         let reference: Vec<usize> = nearest(&t, &q).iter().map(|n| n.0).collect();
