@@ -118,7 +118,7 @@ pub struct MonoConfig {
     /// Start a new map after this many frames in a row in which the corner tracks could not be
     /// followed (10, a third of a second at 30 Hz: a black frame or a short glitch is waited
     /// out against the last good frame; after longer, the camera has moved too far for LK
-    /// from there).
+    /// from there). A refused frame whose place the map has is relocalised there at once.
     pub max_refused: usize,
     /// Search the map points of nearby keyframes that no track measures, at the pose predicted
     /// for the frame (thesis §6.2.5: tracking against the points of the reference's

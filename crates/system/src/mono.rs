@@ -23,7 +23,9 @@
 //! relocalised in it if it can be (`MonoSystem::relocalise`: its ORB words against the
 //! keyframe database, P3P RANSAC against the best keyframes' points, the guided search of
 //! their neighbourhood around that pose): the camera then tracks on in the same map, and
-//! `RunResult::relocalisations` lists where. A camera not relocalised within
+//! `RunResult::relocalisations` lists where. A frame the tracks cannot follow into has its
+//! place looked up at once, and is relocalised there if the map has it (a jump to a mapped
+//! place is not waited out for `mono.max_refused` frames). A camera not relocalised within
 //! `tracker.new_map_after` seconds, or lost before a map exists or without a vocabulary,
 //! starts again from the current frame, as when the bootstrap finds no geometry within
 //! `max_bootstrap_frames`: the frames in between are `lost` with the reason, and the new map
@@ -945,14 +947,8 @@ impl MonoSystem {
     /// the following frames try to relocalise in it ([`MonoSystem::relocalise`]); else a new
     /// map starts at the next frame. Returns what the frame's state says of it.
     fn lose(&mut self, frame: &data::sequence::Frame, why: String) -> String {
-        let worth = self.loops.is_some()
-            && self.config.tracker.new_map_after > 0.0
-            && self
-                .explorer
-                .as_ref()
-                .is_some_and(|e| e.map().keyframes.len() >= 2);
         self.refused = 0;
-        if !worth {
+        if !self.relocalisable() {
             let reason = format!("{why}: a new map starts");
             self.restart(format!("frame {}: {reason}", frame.index));
             return reason;
@@ -968,19 +964,36 @@ impl MonoSystem {
         format!("{why}: relocalising in the map")
     }
 
+    /// Whether a lost camera looks for its place in the current map ([`MonoSystem::lose`]): a
+    /// bootstrapped map, a vocabulary to recognise its places, and `tracker.new_map_after` > 0.
+    fn relocalisable(&self) -> bool {
+        self.loops.is_some()
+            && self.config.tracker.new_map_after > 0.0
+            && self
+                .explorer
+                .as_ref()
+                .is_some_and(|e| e.map().keyframes.len() >= 2)
+    }
+
     /// Looks for a lost frame in the current map (ORB-SLAM's relocalisation, Mur-Artal et al.
-    /// 2015, with this system's stages): its ORB words scored against the keyframe database,
-    /// the best keyframes verified 2D–3D by P3P RANSAC against their points (depths regressed
-    /// from their map points; [`PlaceRecognition::relocalise`]), which gives the frame's
-    /// pose; then new corner tracks from this frame and the map points of the found keyframe's
-    /// neighbourhood searched for around that pose (the guided search of `refind`, as on any
-    /// frame). Accepted with at least `tracker.min_good` points found: the exploration goes on
-    /// from the pose (`MonoExplorer::relocalise`) and the caller processes the frame's
-    /// measurements. `Err` says why not.
+    /// 2015, with this system's stages): [`MonoSystem::verified_place`], then
+    /// [`MonoSystem::relocalise_at`] its pose. `Err` says why not.
     fn relocalise(
         &mut self,
         frame: &data::sequence::Frame,
     ) -> Result<(Measurements, Relocalisation), String> {
+        let (pose, relocalisation) = self.verified_place(frame)?;
+        self.relocalise_at(frame, pose, relocalisation)
+    }
+
+    /// The place of `frame` in the current map, changing nothing: its ORB words scored against
+    /// the keyframe database, the best keyframes verified 2D–3D by P3P RANSAC against their
+    /// points (depths regressed from their map points; [`PlaceRecognition::relocalise`]).
+    /// Returns the frame's pose `camera_from_world` and what it was found by.
+    fn verified_place(
+        &self,
+        frame: &data::sequence::Frame,
+    ) -> Result<(Se3, Relocalisation), String> {
         let image = frame.gray();
         let (Some(loops), Some(explorer)) = (self.loops.as_ref(), self.explorer.as_ref()) else {
             return Err("no map or no vocabulary".into());
@@ -1013,11 +1026,26 @@ impl MonoSystem {
             ransac_inliers: candidate.ransac_inliers,
             tracked: 0,
         };
-        self.explorer
-            .as_mut()
-            .expect("checked above")
-            .relocalise(frame.index, pose);
-        self.reference = Some(candidate.old);
+        Ok((pose, relocalisation))
+    }
+
+    /// Relocalises `frame` at `pose` ([`MonoSystem::verified_place`]): new corner tracks from
+    /// this frame and the map points of the found keyframe's neighbourhood searched for around
+    /// that pose (the guided search of `refind`, as on any frame). Accepted with at least
+    /// `tracker.min_good` points found: the exploration goes on from the pose
+    /// (`MonoExplorer::relocalise`) and the caller processes the frame's measurements.
+    fn relocalise_at(
+        &mut self,
+        frame: &data::sequence::Frame,
+        pose: Se3,
+        relocalisation: Relocalisation,
+    ) -> Result<(Measurements, Relocalisation), String> {
+        let image = frame.gray();
+        let Some(explorer) = self.explorer.as_mut() else {
+            return Err("no map".into());
+        };
+        explorer.relocalise(frame.index, pose);
+        self.reference = Some(relocalisation.keyframe);
         self.tracks.reset();
         let mut measurements: Measurements = match self.tracks.push(image) {
             Ok(Ok(tracks)) => tracks
@@ -1033,9 +1061,9 @@ impl MonoSystem {
             return Err(format!(
                 "keyframe {} (frame {}) verified with {} inliers, but only {found} of its \
                  neighbourhood's map points found around the pose",
-                candidate.old.index(),
+                relocalisation.keyframe.index(),
                 relocalisation.keyframe_frame,
-                candidate.ransac_inliers
+                relocalisation.ransac_inliers
             ));
         }
         Ok((
@@ -1083,6 +1111,24 @@ impl MonoSystem {
         }
         self.events.clear();
         self.relative.clear();
+    }
+
+    /// Records `frame` as lost for the reason `why`, with no pose; returns its report.
+    fn lost_frame(
+        &mut self,
+        frame: &data::sequence::Frame,
+        why: String,
+        start: Instant,
+    ) -> FrameReport {
+        let report = FrameReport {
+            index: frame.index,
+            state: TrackingState::Lost(why),
+            keyframe: None,
+            stats: None,
+            time: start.elapsed(),
+            time_tracking: start.elapsed(),
+        };
+        self.push(report, frame, None)
     }
 
     /// Records a frame's pose and state and its report; returns the report as recorded.
@@ -1473,18 +1519,14 @@ impl LiveRun<2> for MonoSystem {
                 match found {
                     Ok(found) => relocalised = Some(found),
                     Err(why) => {
-                        let report = FrameReport {
-                            index: frame.index,
-                            state: TrackingState::Lost(format!(
+                        return Ok(self.lost_frame(
+                            &frame,
+                            format!(
                                 "lost at frame {} ({}); relocalisation: {why}",
                                 lost.frame, lost.why
-                            )),
-                            keyframe: None,
-                            stats: None,
-                            time: start.elapsed(),
-                            time_tracking: start.elapsed(),
-                        };
-                        return Ok(self.push(report, &frame, None));
+                            ),
+                            start,
+                        ));
                     }
                 }
             }
@@ -1493,7 +1535,7 @@ impl LiveRun<2> for MonoSystem {
             Some((measurements, relocalisation)) => {
                 (measurements, relocalisation.tracked, Some(relocalisation))
             }
-            None => {
+            None => 'tracked: {
                 let t = Instant::now();
                 let measurements: Result<Vec<(TrackId, Vector2<f64>)>, _> = self
                     .tracks
@@ -1518,21 +1560,44 @@ impl LiveRun<2> for MonoSystem {
                         let mut why = format!(
                             "only {survived} of {of} corner tracks followed into this frame: refused"
                         );
+                        // The camera may have jumped to another part of the map (a gap in the
+                        // recording, a kidnap): the frame's place is looked up at once, as the
+                        // stereo and RGB-D system and ORB-SLAM look up a lost frame's. Found,
+                        // the camera is lost from here and relocalised there; else the tracks
+                        // wait in the last frame they followed into, as before (a black or
+                        // blurred frame finds no place).
+                        if self.relocalisable() {
+                            let t = Instant::now();
+                            let place = self.verified_place(&frame);
+                            self.record
+                                .timings
+                                .record("track: refused frame's place", t.elapsed());
+                            if let Ok((pose, relocalisation)) = place {
+                                let lost = self.lose(&frame, why.clone());
+                                let t = Instant::now();
+                                let found = self.relocalise_at(&frame, pose, relocalisation);
+                                self.record.timings.record("track: relocalise", t.elapsed());
+                                match found {
+                                    Ok((measurements, r)) => {
+                                        break 'tracked (measurements, r.tracked, Some(r));
+                                    }
+                                    Err(e) => {
+                                        return Ok(self.lost_frame(
+                                            &frame,
+                                            format!("{lost}; relocalisation: {e}"),
+                                            start,
+                                        ));
+                                    }
+                                }
+                            }
+                        }
                         if self.refused >= self.config.mono.max_refused {
                             let refused = self.refused;
                             let lost =
                                 self.lose(&frame, format!("{refused} frames in a row refused"));
                             why.push_str(&format!("; {lost}"));
                         }
-                        let report = FrameReport {
-                            index: frame.index,
-                            state: TrackingState::Lost(why),
-                            keyframe: None,
-                            stats: None,
-                            time: start.elapsed(),
-                            time_tracking: start.elapsed(),
-                        };
-                        return Ok(self.push(report, &frame, None));
+                        return Ok(self.lost_frame(&frame, why, start));
                     }
                 };
                 let t = Instant::now();

@@ -410,6 +410,50 @@ fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
     );
 }
 
+/// A camera that jumps to a mapped place is relocalised at the first frame after the jump, not
+/// after `mono.max_refused` frames in which the tracks could not follow: 7-Scenes with frames
+/// 301–619 cut, so that the camera lands where it was around frame 200 (PROVENANCE.md: frames
+/// 136–205 are revisited at 616–680). Every frame from the jump on has a pose in the first map.
+#[test]
+fn a_camera_that_jumps_to_a_mapped_place_is_relocalised_at_once() {
+    let Some((sequence, new_system)) = seven_scenes_with_loops() else {
+        return;
+    };
+    let mut system = new_system(SystemConfig::default());
+    let cut: Vec<usize> = (0..=300).chain(620..680).collect();
+    let mut states = Vec::new();
+    for &k in &cut {
+        let report = system.process(sequence.read(k).unwrap().unwrap()).unwrap();
+        states.push((k, report.state));
+    }
+    let r = system.finish(false).unwrap();
+    println!("relocalisations: {:?}", r.relocalisations);
+    assert!(r.new_maps.is_empty(), "{:?}", r.new_maps);
+    let first = r.relocalisations.first().expect("a relocalisation");
+    assert!(
+        first.frame == 620 && first.keyframe_frame <= 300,
+        "relocalised at frame {} (the jump lands at 620), in keyframe of frame {}",
+        first.frame,
+        first.keyframe_frame
+    );
+    let unposed: Vec<usize> = r
+        .record
+        .frames
+        .iter()
+        .filter(|f| f.index >= 620 && f.world_from_camera.is_none())
+        .map(|f| f.index)
+        .collect();
+    assert!(
+        unposed.is_empty(),
+        "frames after the jump without a pose: {unposed:?}; states: {:?}",
+        states
+            .iter()
+            .filter(|(k, _)| *k >= 620)
+            .take(12)
+            .collect::<Vec<_>>()
+    );
+}
+
 /// Monocular maps joined by place recognition: the same 7-Scenes cut (frames 301–399), but with
 /// `tracker.new_map_after` 0, so that the lost camera starts a new map at once instead of
 /// relocalising. When the new map's keyframes come back to places of the first (the camera
