@@ -9,7 +9,9 @@ Per sequence:
 - Open3D hybrid RGB-D odometry once (RGB-D sequences).
 ATE RMSE by evo_ape -a (SE(3) alignment; monocular runs -a -s, Sim(3)) on the every-frame trajectory each system returned live
 and on its trajectory after the run (dwslam: trajectory_final.tum; ORB-SLAM3: the trajectory it
-saves at shutdown)."""
+saves at shutdown). For the stereo and RGB-D sequences a second table splits each live trajectory's
+error into shape and scale: its ATE after a Sim(3) alignment and that alignment's scale, per
+system and run (on KITTI the SE(3) ATE follows the scale: see bench/README, thirteenth session)."""
 import argparse, csv, json, os, re, statistics, subprocess, sys, time
 
 ap = argparse.ArgumentParser()
@@ -115,6 +117,16 @@ def ate(gt, est, sim3=False):
     return float(m.group(1)) if m else None
 
 
+def shape_and_scale(gt, est):
+    """(ATE RMSE after a Sim(3) alignment, the alignment's scale) of `est` against `gt` (evo_ape
+    -as -v), None if evo gives neither. A scale below 1: the trajectory is longer than the ground
+    truth's by about its inverse."""
+    p = subprocess.run([evo, "tum", gt, est, "-as", "-v", "--t_max_diff", "0.02"], capture_output=True, text=True)
+    m = re.search(r"rmse\s+([0-9.eE+-]+)", p.stdout)
+    k = re.search(r"Scale correction:\s+([0-9.eE+-]+)", p.stdout)
+    return (float(m.group(1)), float(k.group(1))) if m and k else None
+
+
 def dwslam(name, args, core, deterministic):
     out = os.path.join(a.out, "dwslam-" + re.sub(r"\W+", "_", name) + ("-det" if deterministic else "-thr"))
     cmd = ([] if core is None else ["taskset", "-c", str(core)]) + [a.dwslam, "run",
@@ -138,6 +150,8 @@ def dwslam(name, args, core, deterministic):
         "loop_scales": [l.get("scale") for l in s.get("loops", []) if l.get("scale") is not None],
         "ate_live": ate(gt, os.path.join(out, "trajectory.tum"), mono),
         "ate_final": ate(gt, os.path.join(out, "trajectory_final.tum"), mono),
+        "shape_scale_live": None if mono else shape_and_scale(gt, os.path.join(out, "trajectory.tum")),
+        "ground_truth": gt,
         "alignment": "Sim3" if mono else "SE3",
         "tracked": (s["tracking"]["good"] + s["tracking"]["weak"]) / n,
         "ms_tracking_median": statistics.median(track) if track else None,
@@ -154,14 +168,24 @@ def dwslam(name, args, core, deterministic):
     }
 
 
-def peer(kind, name, seq, extra, run=0, core=1):
+def peer(kind, name, seq, extra, run=0, core=1, gt=None):
     # One folder per sequence and run (the rendered stereo sequences share run_peer.py's
     # KITTI-folder reader, so its sequence name alone would not tell them apart).
     out = os.path.join(a.out, f"{kind}-" + re.sub(r"\W+", "_", name) + f"-{run}")
     cmd = ["taskset", "-c", str(core), py, os.path.join(a.peers, "run_peer.py"), kind, seq, out, "--data", a.data, *extra]
     p = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PATH": os.path.join(a.venv, "bin") + ":" + os.environ["PATH"]})
     lines = [l for l in p.stdout.splitlines() if l.startswith("{")]
-    return json.loads(lines[-1]) if lines else {"error": (p.stdout + p.stderr)[-500:]}
+    if not lines:
+        return {"error": (p.stdout + p.stderr)[-500:]}
+    r = json.loads(lines[-1])
+    # Its live trajectory's shape and scale (stereo and RGB-D: run_peer.py aligns those in SE(3)),
+    # against the ground truth it wrote, else `gt` (dwslam's of the same frames and timestamps).
+    online = [f for f in os.listdir(out) if f.endswith("_online.tum")]
+    gts = [os.path.join(out, f) for f in os.listdir(out) if f.startswith("gt_") and f.endswith(".tum")]
+    gts = gts or ([gt] if gt and os.path.exists(gt) else [])
+    if r.get("align") == "SE3" and len(online) == 1 and len(gts) == 1:
+        r["shape_scale_live"] = shape_and_scale(gts[0], os.path.join(out, online[0]))
+    return r
 
 
 def fmt(x, scale=100.0, unit=" cm"):
@@ -183,7 +207,8 @@ for name, args, seq, extra, o3d in SEQUENCES:
     table.append(f"| | dwslam (threaded) | {fmt(thr.get('ate_live'))} | {fmt(thr.get('ate_final'))} | "
                  f"{thr.get('tracked', 0) * 100:.0f} % | | | {thr.get('fps', 0):.1f} |")
     if seq:
-        runs = [peer("orbslam3", name, seq, extra, run) for run in range(a.orb_runs)]
+        gt = det.get("ground_truth")
+        runs = [peer("orbslam3", name, seq, extra, run, gt=gt) for run in range(a.orb_runs)]
         results[name]["orbslam3"] = runs
         ok = [r for r in runs if "ate_rmse_m" in r and r["ate_rmse_m"] is not None]
         if ok:
@@ -231,6 +256,22 @@ if mono_loops:
         sc = d["loop_scales"]
         table.append(f"| {n} | {fmt(d['ate_live'])} | {fmt(d['ate_final'])} | {fmt(d['ate_final_se3'])} | "
                      f"{d['ate_final_se3'] / d['ate_final']:.2f} | {min(sc):.2f}–{max(sc):.2f} ({len(sc)} loops) |")
+shapes = [(n, r) for n, r in results.items() if r["dwslam_deterministic"].get("shape_scale_live")]
+if shapes:
+    # The live trajectory's error split into shape (ATE after a Sim(3) alignment) and scale (that
+    # alignment's scale): where two systems differ in SE(3) ATE by their scale alone, the one
+    # with the better shape is the better tracker, and the scale is the calibration's.
+    table.append("")
+    table.append("| sequence | system | live ATE, SE(3) | live ATE, Sim(3) | Sim(3) scale |")
+    table.append("|---|---|---|---|---|")
+    for n, r in shapes:
+        rows = [("dwslam (deterministic)", r["dwslam_deterministic"].get("ate_live"), r["dwslam_deterministic"]["shape_scale_live"]),
+                ("dwslam (threaded)", r["dwslam_threaded"].get("ate_live"), r["dwslam_threaded"].get("shape_scale_live"))]
+        rows += [(f"ORB-SLAM3 run {i + 1}", o.get("ate_rmse_online_m"), o.get("shape_scale_live"))
+                 for i, o in enumerate(r.get("orbslam3", []))]
+        for i, (system, se3, ss) in enumerate(rows):
+            table.append(f"| {n if i == 0 else ''} | {system} | {fmt(se3)} | {fmt(ss[0]) if ss else '—'} | "
+                         f"{f'{ss[1]:.4f}' if ss else '—'} |")
 evidence = [(n, r["dwslam_deterministic"].get("appearance_evidence")) for n, r in results.items()]
 evidence = [(n, e) for n, e in evidence if e]
 if evidence:
