@@ -230,14 +230,14 @@ fn ransac_with_theta<E: Estimator>(
     config: &PlaceRecognitionConfig,
     (query_id, old_id): (u32, u32),
 ) -> Result<geom::ransac::RansacResult<E::Model>, Verification> {
+    let matches = estimator.num_data();
     let ransac_config = RansacConfig {
         threshold: gate,
         confidence: config.ransac_confidence,
-        max_iterations: config.ransac_max_iterations,
+        max_iterations: max_iterations(config, matches, estimator.sample_size()),
         min_iterations: 10,
         seed: hypothesis_seed(config, query_id, old_id),
     };
-    let matches = estimator.num_data();
     let Ok(result) = ransac(estimator, &ransac_config) else {
         return Err(Verification::TooFewInliers {
             matches,
@@ -251,6 +251,22 @@ fn ransac_with_theta<E: Estimator>(
         });
     }
     Ok(result)
+}
+
+/// The samples a verification's RANSAC draws at most: `ransac_max_iterations`, and no more than
+/// it takes to draw an all-inlier sample with probability `ransac_confidence` if Θ of the
+/// `matches` were inliers (`geom::ransac::required_iterations` at the ratio Θ / matches). For
+/// the verifications accepted on the RANSAC's own inliers ([`ransac_with_theta`]: rigid and
+/// absolute): once the best hypothesis has ≥ Θ inliers, RANSAC's stopping rule ends within
+/// this bound anyway, so a run differs only if its best at the bound has fewer and a later
+/// sample would have found more — for a place with Θ inliers, with probability at most
+/// 1 − `ransac_confidence`. A place that is not there is refused after this many samples
+/// instead of `ransac_max_iterations`, and such places are most of the verifications.
+fn max_iterations(config: &PlaceRecognitionConfig, matches: usize, sample_size: usize) -> usize {
+    let theta = config.min_inliers.max(sample_size);
+    let ratio = theta as f64 / matches.max(1) as f64;
+    geom::ransac::required_iterations(ratio, sample_size, config.ransac_confidence)
+        .clamp(1, config.ransac_max_iterations)
 }
 
 /// The seed of one hypothesis's RANSAC: the configured seed mixed with the two keyframes'
@@ -596,6 +612,9 @@ fn verify_similarity(
     };
     loop_config.ransac.seed = hypothesis_seed(config, query_id, old_id);
     loop_config.ransac.confidence = config.ransac_confidence;
+    // Not bounded by Θ as a rigid verification is ([`max_iterations`]): the similarity is
+    // accepted on the inliers of the two-view refinement after the RANSAC, not on the
+    // RANSAC's own, so a RANSAC hypothesis with fewer than Θ inliers may still be accepted.
     loop_config.ransac.max_iterations = config.ransac_max_iterations;
     // The two keyframes share one camera model in the live system; the old one's is used.
     match estimate_loop_constraint(&old.camera, &old_view, &query_view, &loop_config) {
@@ -718,6 +737,89 @@ mod tests {
                 r.iterations
             );
         }
+    }
+
+    /// The verification's sample bound ([`max_iterations`]): a place with exactly Θ inliers
+    /// among the matches is still found (all-inlier sample within the bound with probability
+    /// `ransac_confidence`), and a place with fewer is refused after the bound's samples, not
+    /// `ransac_max_iterations`.
+    #[test]
+    fn a_place_with_theta_inliers_is_found_within_the_sample_bound() {
+        let config = PlaceRecognitionConfig::default();
+        let theta = config.min_inliers;
+        assert_eq!(
+            max_iterations(&config, 100, 3),
+            geom::ransac::required_iterations(theta as f64 / 100.0, 3, config.ransac_confidence)
+        );
+        assert_eq!(
+            max_iterations(&config, 10_000, 3),
+            config.ransac_max_iterations
+        );
+        let focal = 585.0;
+        let truth = Se3::new(
+            So3::exp(&Vector3::new(0.2, 0.1, -0.3)),
+            Vector3::new(-0.2, 0.1, 0.4),
+        );
+        let n = 70;
+        let bound = max_iterations(&config, n, 3);
+        assert!(bound < config.ransac_max_iterations / 4, "{bound}");
+        let mut found = [0; 2];
+        let trials = 100;
+        for seed in 0..trials {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            // Θ inliers, then Θ / 2.
+            for (case, inliers) in [theta, theta / 2].into_iter().enumerate() {
+                let (mut source, mut target) = (Vec::new(), Vec::new());
+                for i in 0..n {
+                    let x_o = Vector3::new(
+                        rng.random_range(-1.5..1.5),
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(1.0..4.0),
+                    );
+                    source.push(x_o);
+                    target.push(if i < inliers {
+                        truth.act(&x_o)
+                    } else {
+                        Vector3::new(
+                            rng.random_range(-2.0..2.0),
+                            rng.random_range(-1.5..1.5),
+                            rng.random_range(0.8..4.5),
+                        )
+                    });
+                }
+                let cov = |p: &Vector3<f64>| point_covariance(p, 1.0, focal, &config);
+                let target_cov: Vec<_> = target.iter().map(cov).collect();
+                let source_cov: Vec<_> = source.iter().map(cov).collect();
+                let estimator = RigidEstimator::new(&target, &target_cov, &source, &source_cov);
+                if let Ok(r) = ransac_with_theta(
+                    &estimator,
+                    config.inlier_gate(),
+                    &config,
+                    (seed as u32, 1000),
+                ) {
+                    assert!(r.iterations <= bound, "{} > {bound}", r.iterations);
+                    found[case] += 1;
+                } else if case == 1 {
+                    // Without the bound, a place that is not there costs more samples.
+                    let unbounded = ransac(
+                        &estimator,
+                        &RansacConfig {
+                            threshold: config.inlier_gate(),
+                            confidence: config.ransac_confidence,
+                            max_iterations: config.ransac_max_iterations,
+                            min_iterations: 10,
+                            seed,
+                        },
+                    )
+                    .unwrap();
+                    assert!(unbounded.iterations > bound, "{}", unbounded.iterations);
+                }
+            }
+        }
+        // Θ inliers: missed with probability ≤ 1 − 0.999 per trial (and by outliers that
+        // pull the fit); Θ / 2: never accepted.
+        assert!(found[0] >= trials - 2, "{found:?}");
+        assert_eq!(found[1], 0, "{found:?}");
     }
 
     /// Heteroscedastic noise (σ ∝ z²): the weighted refinement is exact on exact data and
