@@ -198,6 +198,36 @@ pub fn ransac<E: Estimator>(
     estimator: &E,
     config: &RansacConfig,
 ) -> Result<RansacResult<E::Model>, RansacError> {
+    search(estimator, config, None)
+}
+
+/// When [`ransac_or_give_up`] gives up: after `after` samples, if the best hypothesis so far
+/// has fewer than `below` inliers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GiveUp {
+    /// Samples drawn before the check.
+    pub after: usize,
+    /// Inliers the best hypothesis needs by then for the search to go on.
+    pub below: usize,
+}
+
+/// [`ransac`], except that the search ends early where `give_up` says (a verification that
+/// needs a consensus of some size refusing data that show no sign of one). Where it does not
+/// give up, the result is [`ransac`]'s with the same configuration: the same samples in the
+/// same order. Where it does, the best hypothesis so far.
+pub fn ransac_or_give_up<E: Estimator>(
+    estimator: &E,
+    config: &RansacConfig,
+    give_up: GiveUp,
+) -> Result<RansacResult<E::Model>, RansacError> {
+    search(estimator, config, Some(give_up))
+}
+
+fn search<E: Estimator>(
+    estimator: &E,
+    config: &RansacConfig,
+    give_up: Option<GiveUp>,
+) -> Result<RansacResult<E::Model>, RansacError> {
     let n = estimator.num_data();
     let s = estimator.sample_size();
     if !(config.threshold > 0.0 && config.threshold.is_finite()) {
@@ -222,6 +252,12 @@ pub fn ransac<E: Estimator>(
     let mut iterations = 0;
     let mut degenerate = 0;
     while iterations < needed.max(config.min_iterations).min(config.max_iterations) {
+        if let Some(g) = give_up
+            && iterations == g.after
+            && best.as_ref().is_none_or(|b| b.2 < g.below)
+        {
+            break;
+        }
         iterations += 1;
         let sample = rand::seq::index::sample(&mut rng, n, s).into_vec();
         models.clear();
@@ -375,6 +411,62 @@ mod tests {
             assert_eq!(r.inliers, expected_inliers, "trial {trial}");
             // At 50 % inliers, p = 0.999 needs ⌈ln(0.001)/ln(1 − 0.125)⌉ = 52 samples.
             assert!(r.iterations <= 200, "{}", r.iterations);
+        }
+    }
+
+    /// `ransac_or_give_up`: where it does not give up, [`ransac`]'s result (same model,
+    /// inliers and samples); where it does, after exactly `after` samples.
+    #[test]
+    fn giving_up_early_changes_nothing_else() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let truth = Sim3::new(So3::exp(&Vector3::new(0.2, 0.5, -0.1)), Vector3::x(), 1.3).unwrap();
+        let source = random_points(&mut rng, 120);
+        // Half inliers: RANSAC needs 52 samples (p = 0.999).
+        let target: Vec<_> = source
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                if i % 2 == 0 {
+                    truth.act(p)
+                } else {
+                    random_points(&mut rng, 1)[0] * 3.0
+                }
+            })
+            .collect();
+        let est = Sim3Estimator {
+            target: &target,
+            source: &source,
+        };
+        for seed in 0..5 {
+            let config = RansacConfig {
+                threshold: 0.05,
+                seed,
+                ..RansacConfig::default()
+            };
+            let full = ransac(&est, &config).unwrap();
+            assert!(full.iterations > 30, "{}", full.iterations);
+            // By 30 samples an all-inlier one has been drawn (1 − 0.875³⁰ = 98 %; these seeds
+            // draw one): it goes on.
+            let kept = ransac_or_give_up(
+                &est,
+                &config,
+                GiveUp {
+                    after: 30,
+                    below: 10,
+                },
+            );
+            assert_eq!(kept.unwrap(), full);
+            // Asking for more inliers than there are: it gives up after 30 samples.
+            let given_up = ransac_or_give_up(
+                &est,
+                &config,
+                GiveUp {
+                    after: 30,
+                    below: 1000,
+                },
+            )
+            .unwrap();
+            assert_eq!(given_up.iterations, 30);
         }
     }
 

@@ -28,7 +28,7 @@ use super::{Alignment, LoopMatch, PlaceRecognitionConfig};
 use geom::CameraModel;
 use geom::align::align_se3;
 use geom::pnp::PnpEstimator;
-use geom::ransac::{Estimator, RansacConfig, ransac};
+use geom::ransac::{Estimator, GiveUp, RansacConfig, ransac_or_give_up};
 use lie::{LieGroup, Se3, Sim3};
 use nalgebra::{Matrix3, Vector2, Vector3};
 use slam::loop_closure::{LoopClosureConfig, LoopView, estimate_loop_constraint};
@@ -224,6 +224,11 @@ impl Estimator for RigidEstimator<'_> {
 
 /// The RANSAC of a verification (`estimator` over the matches, inlier threshold `gate`, seeded
 /// by the two keyframes' ids), accepted with at least Θ inliers; else the refusal to return.
+///
+/// A place that is not there costs RANSAC all its samples, and such places are most of the
+/// verifications. So after [`early_refusal`]'s samples, a place whose best hypothesis explains
+/// fewer than half of Θ is refused (`geom::ransac::ransac_or_give_up`). Any other search goes
+/// on to its end, with the result it had before this check existed.
 fn ransac_with_theta<E: Estimator>(
     estimator: &E,
     gate: f64,
@@ -231,20 +236,25 @@ fn ransac_with_theta<E: Estimator>(
     (query_id, old_id): (u32, u32),
 ) -> Result<geom::ransac::RansacResult<E::Model>, Verification> {
     let matches = estimator.num_data();
+    let theta = config.min_inliers;
     let ransac_config = RansacConfig {
         threshold: gate,
         confidence: config.ransac_confidence,
-        max_iterations: max_iterations(config, matches, estimator.sample_size()),
+        max_iterations: config.ransac_max_iterations,
         min_iterations: 10,
         seed: hypothesis_seed(config, query_id, old_id),
     };
-    let Ok(result) = ransac(estimator, &ransac_config) else {
+    let give_up = GiveUp {
+        after: early_refusal(config, matches, estimator.sample_size()),
+        below: theta.div_ceil(2),
+    };
+    let Ok(result) = ransac_or_give_up(estimator, &ransac_config, give_up) else {
         return Err(Verification::TooFewInliers {
             matches,
             inliers: 0,
         });
     };
-    if result.inliers.len() < config.min_inliers {
+    if result.inliers.len() < theta {
         return Err(Verification::TooFewInliers {
             matches,
             inliers: result.inliers.len(),
@@ -253,16 +263,18 @@ fn ransac_with_theta<E: Estimator>(
     Ok(result)
 }
 
-/// The samples a verification's RANSAC draws at most: `ransac_max_iterations`, and no more than
-/// it takes to draw an all-inlier sample with probability `ransac_confidence` if Θ of the
-/// `matches` were inliers (`geom::ransac::required_iterations` at the ratio Θ / matches). For
-/// the verifications accepted on the RANSAC's own inliers ([`ransac_with_theta`]: rigid and
-/// absolute): once the best hypothesis has ≥ Θ inliers, RANSAC's stopping rule ends within
-/// this bound anyway, so a run differs only if its best at the bound has fewer and a later
-/// sample would have found more — for a place with Θ inliers, with probability at most
-/// 1 − `ransac_confidence`. A place that is not there is refused after this many samples
-/// instead of `ransac_max_iterations`, and such places are most of the verifications.
-fn max_iterations(config: &PlaceRecognitionConfig, matches: usize, sample_size: usize) -> usize {
+/// The samples after which a verification's RANSAC refuses a place whose best hypothesis
+/// explains fewer than Θ/2 matches ([`ransac_with_theta`]): as many as it takes to draw an
+/// all-inlier sample with probability `ransac_confidence` if Θ of the `matches` were inliers
+/// (`geom::ransac::required_iterations` at the ratio Θ / matches), at most
+/// `ransac_max_iterations`. The standard bound assumes that an all-inlier sample's hypothesis
+/// explains all the inliers; with noisy points a minimal sample's hypothesis (refitted, LO-RANSAC)
+/// explains fewer, so a place is given up only if no hypothesis explains half of Θ. A place at
+/// Θ is then lost only if none of this many samples was all-inlier (probability at most 1 −
+/// `ransac_confidence`) or the one that was explains under half its inliers. Requiring the
+/// full Θ instead missed two loops with 20 and 21 inliers in twelve runs (7-Scenes RGB-D 500,
+/// the rendered courtyard; bench/README, thirteenth session).
+fn early_refusal(config: &PlaceRecognitionConfig, matches: usize, sample_size: usize) -> usize {
     let theta = config.min_inliers.max(sample_size);
     let ratio = theta as f64 / matches.max(1) as f64;
     geom::ransac::required_iterations(ratio, sample_size, config.ransac_confidence)
@@ -612,7 +624,7 @@ fn verify_similarity(
     };
     loop_config.ransac.seed = hypothesis_seed(config, query_id, old_id);
     loop_config.ransac.confidence = config.ransac_confidence;
-    // Not bounded by Θ as a rigid verification is ([`max_iterations`]): the similarity is
+    // Not refused early as a rigid verification is ([`early_refusal`]): the similarity is
     // accepted on the inliers of the two-view refinement after the RANSAC, not on the
     // RANSAC's own, so a RANSAC hypothesis with fewer than Θ inliers may still be accepted.
     loop_config.ransac.max_iterations = config.ransac_max_iterations;
@@ -643,6 +655,7 @@ fn verify_similarity(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use geom::ransac::ransac;
     use lie::So3;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
@@ -739,20 +752,19 @@ mod tests {
         }
     }
 
-    /// The verification's sample bound ([`max_iterations`]): a place with exactly Θ inliers
-    /// among the matches is still found (all-inlier sample within the bound with probability
-    /// `ransac_confidence`), and a place with fewer is refused after the bound's samples, not
-    /// `ransac_max_iterations`.
+    /// The verification's early refusal ([`early_refusal`]): a place with exactly Θ inliers
+    /// among the matches is still found, and a place with Θ/4 would cost the unbounded search
+    /// more samples than the bound after which it is refused.
     #[test]
-    fn a_place_with_theta_inliers_is_found_within_the_sample_bound() {
+    fn a_place_with_theta_inliers_is_found_and_a_hopeless_one_given_up() {
         let config = PlaceRecognitionConfig::default();
         let theta = config.min_inliers;
         assert_eq!(
-            max_iterations(&config, 100, 3),
+            early_refusal(&config, 100, 3),
             geom::ransac::required_iterations(theta as f64 / 100.0, 3, config.ransac_confidence)
         );
         assert_eq!(
-            max_iterations(&config, 10_000, 3),
+            early_refusal(&config, 10_000, 3),
             config.ransac_max_iterations
         );
         let focal = 585.0;
@@ -761,14 +773,14 @@ mod tests {
             Vector3::new(-0.2, 0.1, 0.4),
         );
         let n = 70;
-        let bound = max_iterations(&config, n, 3);
+        let bound = early_refusal(&config, n, 3);
         assert!(bound < config.ransac_max_iterations / 4, "{bound}");
         let mut found = [0; 2];
         let trials = 100;
         for seed in 0..trials {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            // Θ inliers, then Θ / 2.
-            for (case, inliers) in [theta, theta / 2].into_iter().enumerate() {
+            // Θ inliers, then Θ / 4.
+            for (case, inliers) in [theta, theta / 4].into_iter().enumerate() {
                 let (mut source, mut target) = (Vec::new(), Vec::new());
                 for i in 0..n {
                     let x_o = Vector3::new(
@@ -791,13 +803,14 @@ mod tests {
                 let target_cov: Vec<_> = target.iter().map(cov).collect();
                 let source_cov: Vec<_> = source.iter().map(cov).collect();
                 let estimator = RigidEstimator::new(&target, &target_cov, &source, &source_cov);
-                if let Ok(r) = ransac_with_theta(
+                if ransac_with_theta(
                     &estimator,
                     config.inlier_gate(),
                     &config,
                     (seed as u32, 1000),
-                ) {
-                    assert!(r.iterations <= bound, "{} > {bound}", r.iterations);
+                )
+                .is_ok()
+                {
                     found[case] += 1;
                 } else if case == 1 {
                     // Without the bound, a place that is not there costs more samples.
@@ -817,7 +830,7 @@ mod tests {
             }
         }
         // Θ inliers: missed with probability ≤ 1 − 0.999 per trial (and by outliers that
-        // pull the fit); Θ / 2: never accepted.
+        // pull the fit); Θ / 4: never accepted.
         assert!(found[0] >= trials - 2, "{found:?}");
         assert_eq!(found[1], 0, "{found:?}");
     }
