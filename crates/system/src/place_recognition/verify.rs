@@ -237,13 +237,7 @@ fn ransac_with_theta<E: Estimator>(
 ) -> Result<geom::ransac::RansacResult<E::Model>, Verification> {
     let matches = estimator.num_data();
     let theta = config.min_inliers;
-    let ransac_config = RansacConfig {
-        threshold: gate,
-        confidence: config.ransac_confidence,
-        max_iterations: config.ransac_max_iterations,
-        min_iterations: 10,
-        seed: hypothesis_seed(config, query_id, old_id),
-    };
+    let ransac_config = ransac_config(config, gate, hypothesis_seed(config, query_id, old_id));
     let give_up = GiveUp {
         after: early_refusal(config, matches, estimator.sample_size()),
         below: theta.div_ceil(2),
@@ -261,6 +255,18 @@ fn ransac_with_theta<E: Estimator>(
         });
     }
     Ok(result)
+}
+
+/// A verification's RANSAC: inlier threshold `gate`, the configured confidence and sample
+/// bound, at least 10 samples, `seed`.
+fn ransac_config(config: &PlaceRecognitionConfig, gate: f64, seed: u64) -> RansacConfig {
+    RansacConfig {
+        threshold: gate,
+        confidence: config.ransac_confidence,
+        max_iterations: config.ransac_max_iterations,
+        min_iterations: 10,
+        seed,
+    }
 }
 
 /// The samples after which a verification's RANSAC refuses a place whose best hypothesis
@@ -717,13 +723,7 @@ mod tests {
             let estimator = RigidEstimator::new(&target, &target_cov, &source, &source_cov);
             let r = ransac(
                 &estimator,
-                &RansacConfig {
-                    threshold: config.inlier_gate(),
-                    confidence: config.ransac_confidence,
-                    max_iterations: config.ransac_max_iterations,
-                    min_iterations: 10,
-                    seed: trial as u64,
-                },
+                &ransac_config(&config, config.inlier_gate(), trial as u64),
             )
             .unwrap();
             let err = r.model.compose(&truth.inverse());
@@ -816,13 +816,7 @@ mod tests {
                     // Without the bound, a place that is not there costs more samples.
                     let unbounded = ransac(
                         &estimator,
-                        &RansacConfig {
-                            threshold: config.inlier_gate(),
-                            confidence: config.ransac_confidence,
-                            max_iterations: config.ransac_max_iterations,
-                            min_iterations: 10,
-                            seed,
-                        },
+                        &ransac_config(&config, config.inlier_gate(), seed),
                     )
                     .unwrap();
                     assert!(unbounded.iterations > bound, "{}", unbounded.iterations);
