@@ -13,8 +13,7 @@ use sim::render::sensor::DEFAULT_STEREO_BASELINE;
 use sim::render::{SceneKind, SensorKind, SensorModel, Sequence, SequenceConfig};
 use std::path::PathBuf;
 use std::sync::mpsc::sync_channel;
-use system::config::SystemConfig;
-use system::live::Mode;
+use system::{Mode, SystemConfig};
 
 /// The demo's sensors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]

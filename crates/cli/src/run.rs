@@ -18,10 +18,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use system::config::SystemConfig;
-use system::live::{LiveRun, LiveSystem, Mode, RunResult};
-use system::mono::MonoSystem;
 use system::place_recognition::{VocabularyOrigin, load_vocabulary};
+use system::{LiveRun, Mode, Options, RunGraph, RunResult, System, SystemConfig};
 
 /// Options of `dwslam run`.
 #[derive(Args, Debug, Clone)]
@@ -270,62 +268,101 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         stop,
         output,
     };
-    if let SensorModel::Mono(camera) = &sensor {
-        let enabled = config.loops.enabled;
-        let loops = config.loops.clone();
-        let mut system = MonoSystem::new(*camera, config, &name)?;
-        if enabled {
-            system = system.with_loop_closure(vocabulary(&loops)?)?;
-        }
-        return drive(system, run, settings, Alignment::Sim3, |_| Ok(()));
-    }
-    let loops = config.loops.clone();
-    let dense_config = {
-        let (camera, stereo) = match &sensor {
-            SensorModel::Stereo(s) => (*s, true),
-            SensorModel::Rgbd(r) => (r.stereo, false),
-            SensorModel::Mono(_) => unreachable!("ran above"),
-        };
-        let mut dense = config.dense.clone();
-        dense.depth_noise = config.depth_noise_for(&camera, stereo);
-        (camera.pinhole, dense)
+    let vocabulary = if config.loops.enabled {
+        Some(vocabulary(&config.loops)?)
+    } else {
+        None
     };
-    // The keyframes' depth images only serve the dense model.
-    let mut system =
-        LiveSystem::new(&sensor, config, settings.mode, &name)?.keyframe_depth(settings.dense_ply);
-    if loops.enabled {
-        system = system.with_loop_closure(vocabulary(&loops)?)?;
+    let dense_config = match &sensor {
+        SensorModel::Stereo(s) => Some((*s, true)),
+        SensorModel::Rgbd(r) => Some((r.stereo, false)),
+        SensorModel::Mono(_) => None,
     }
+    .map(|(camera, stereo)| (camera.pinhole, config.dense_model_for(&camera, stereo)));
+    let system = System::new(
+        &sensor,
+        config,
+        Options {
+            mode: settings.mode,
+            sequence: name,
+            vocabulary,
+            // The keyframes' depth images only serve the dense model.
+            keyframe_depth: settings.dense_ply,
+            faults: test_faults()?,
+        },
+    )?;
+    // A monocular map has a scale of its own: it is compared after a similarity.
+    let alignment = if system.free_scale() {
+        Alignment::Sim3
+    } else {
+        Alignment::Se3
+    };
     let dense = |result: &RunResult| -> Result<()> {
-        if !settings.dense_ply {
-            return Ok(());
+        match (&dense_config, &result.graph) {
+            (Some((camera, config)), RunGraph::Depth(graph)) if settings.dense_ply => {
+                write_dense_model(settings, result, graph, camera, config)
+            }
+            _ => Ok(()),
         }
-        let (camera, config) = &dense_config;
-        let t = Instant::now();
-        let model = system::dense_model::fuse(
-            &result.graph,
-            result.world_map,
-            &result.keyframes,
-            camera,
-            config,
-        )?;
-        let path = settings.out.join(DENSE_FILE);
-        let file =
-            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
-        model
-            .write_ply(std::io::BufWriter::new(file))
-            .with_context(|| format!("writing {}", path.display()))?;
-        println!(
-            "dense model: {} points from {} keyframes ({:.1} cm voxels, seen from ≥ {}) in {:.1} s",
-            model.points().len(),
-            model.views(),
-            config.voxel_size * 100.0,
-            config.min_views,
-            t.elapsed().as_secs_f64()
-        );
-        Ok(())
     };
-    drive(system, run, settings, Alignment::Se3, dense)
+    drive(system, run, settings, alignment, dense)
+}
+
+/// The faults of `DWSLAM_TEST_FAULT` for the back-end's threads (the tests of a worker that
+/// dies): `optimiser:panic:N`, `loops:disconnect:N`, … (after N jobs), comma-separated.
+fn test_faults() -> Result<system::Faults> {
+    let mut faults = system::Faults::default();
+    let Ok(spec) = std::env::var("DWSLAM_TEST_FAULT") else {
+        return Ok(faults);
+    };
+    for item in spec.split(',').filter(|s| !s.is_empty()) {
+        let parts: Vec<&str> = item.split(':').collect();
+        let [stage, kind, after] = parts[..] else {
+            bail!("DWSLAM_TEST_FAULT: {item} is not STAGE:KIND:JOBS");
+        };
+        let after: usize = after
+            .parse()
+            .with_context(|| format!("DWSLAM_TEST_FAULT: {item}: JOBS"))?;
+        let fault = match kind {
+            "panic" => system::Fault::Panic { after },
+            "disconnect" => system::Fault::Disconnect { after },
+            _ => bail!("DWSLAM_TEST_FAULT: {item}: KIND is panic or disconnect"),
+        };
+        match stage {
+            "optimiser" => faults.optimiser = Some(fault),
+            "loops" => faults.loops = Some(fault),
+            _ => bail!("DWSLAM_TEST_FAULT: {item}: STAGE is optimiser or loops"),
+        }
+    }
+    Ok(faults)
+}
+
+/// The dense model of a depth sensor's run, `dense.ply` in the output folder.
+fn write_dense_model(
+    settings: &Settings,
+    result: &RunResult,
+    graph: &slam::map::SlamGraph<3>,
+    camera: &geom::PinholeCamera,
+    config: &system::config::DenseModelConfig,
+) -> Result<()> {
+    let t = Instant::now();
+    let model =
+        system::dense_model::fuse(graph, result.world_map, &result.keyframes, camera, config)?;
+    let path = settings.out.join(DENSE_FILE);
+    let file =
+        std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+    model
+        .write_ply(std::io::BufWriter::new(file))
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!(
+        "dense model: {} points from {} keyframes ({:.1} cm voxels, seen from ≥ {}) in {:.1} s",
+        model.points().len(),
+        model.views(),
+        config.voxel_size * 100.0,
+        config.min_views,
+        t.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 /// The vocabulary of appearance-based loop closure (printed: where it came from).
@@ -361,12 +398,12 @@ struct Run {
 /// The frame loop and everything after it, for either system: the progress bar, the outputs
 /// (with `extra` writing what only one system has), ATE/RPE after `alignment` (`Sim3` for a
 /// monocular run, whose scale is its own), the report.
-fn drive<S: LiveRun<N>, const N: usize>(
+fn drive<S: LiveRun>(
     mut system: S,
     run: Run,
     settings: &Settings,
     alignment: Alignment,
-    extra: impl FnOnce(&RunResult<N>) -> Result<()>,
+    extra: impl FnOnce(&RunResult) -> Result<()>,
 ) -> Result<Outcome> {
     let Run {
         frames,
@@ -562,6 +599,13 @@ fn drive<S: LiveRun<N>, const N: usize>(
         "optimisation".into(),
         json!({"count": dwo.len(), "median_ms": median(&dwo), "max_ms": dwo.iter().copied().fold(0.0, f64::max)}),
     );
+    let waits = &result.lock_waits;
+    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    record.extra.insert(
+        "tracking_lock_waits".into(),
+        json!({"locks": waits.count, "median_ms": ms(waits.median), "p99_ms": ms(waits.p99),
+            "max_ms": ms(waits.max), "frames_over_1ms": waits.frames_over_1ms}),
+    );
     if let Some(e) = &evaluation {
         record.extra.insert("evaluation".into(), e.json.clone());
     }
@@ -633,7 +677,7 @@ fn drive<S: LiveRun<N>, const N: usize>(
     }
 }
 
-fn write_frame_stats<const N: usize>(path: &Path, result: &RunResult<N>) -> Result<()> {
+fn write_frame_stats(path: &Path, result: &RunResult) -> Result<()> {
     use std::fmt::Write as _;
     let mut text = String::from(
         "frame,state,keyframe,candidates,visible,searched,found,inliers,tracking_ms,frame_ms\n",
@@ -662,7 +706,7 @@ fn write_frame_stats<const N: usize>(path: &Path, result: &RunResult<N>) -> Resu
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
 }
 
-fn write_optimisation_stats<const N: usize>(path: &Path, result: &RunResult<N>) -> Result<()> {
+fn write_optimisation_stats(path: &Path, result: &RunResult) -> Result<()> {
     use std::fmt::Write as _;
     let mut text = String::from(
         "optimisation,inner_keyframes,outer_keyframes,points,point_constraints,pose_constraints,setup_ms,structure_ms,joint_ms,apply_ms,total_ms\n",
@@ -720,11 +764,7 @@ struct Evaluation {
     ate: Option<(f64, f64)>,
 }
 
-fn evaluate<const N: usize>(
-    gt: &Trajectory,
-    result: &RunResult<N>,
-    alignment: Alignment,
-) -> Evaluation {
+fn evaluate(gt: &Trajectory, result: &RunResult, alignment: Alignment) -> Evaluation {
     let live = result.record.trajectory();
     let mut json = serde_json::Map::new();
     let mut lines = Vec::new();
@@ -823,9 +863,9 @@ fn broken_at_gaps(
 
 /// The report: trajectory against ground truth (top view), the keyframe graph with its loop
 /// edges, time per frame and per keyframe, tracked points per frame.
-fn report<const N: usize>(
+fn report(
     out: &Path,
-    result: &RunResult<N>,
+    result: &RunResult,
     ground_truth: Option<&Trajectory>,
     alignment: Alignment,
 ) -> Result<()> {
@@ -953,23 +993,27 @@ fn report<const N: usize>(
     )?;
     // The keyframe graph: keyframe centres, covisibility edges, loop edges (in the map's
     // frame, the first keyframe's).
-    let g = &result.graph;
-    let centre3 = |k| {
-        g.pose(k)
-            .ok()
-            .map(|t| t.inverse().act(&nalgebra::Vector3::zeros()))
-    };
-    let (ga, gb) = top_axes(g.keyframes().filter_map(|(k, _)| centre3(k)));
+    let nodes: std::collections::BTreeMap<slam::map::KeyframeId, nalgebra::Vector3<f64>> = result
+        .graph
+        .keyframes()
+        .into_iter()
+        .map(|k| {
+            (
+                k.id,
+                k.camera_from_world
+                    .inverse()
+                    .act(&nalgebra::Vector3::zeros()),
+            )
+        })
+        .collect();
+    let centre3 = |k| nodes.get(&k).copied();
+    let (ga, gb) = top_axes(nodes.values().copied());
     let centre = |k| centre3(k).map(|c| (c[ga], c[gb]));
     let mut edges = Vec::new();
-    for (a, kf) in g.keyframes() {
-        for &b in kf.edges().keys() {
-            if a < b
-                && let (Some(p), Some(q)) = (centre(a), centre(b))
-            {
-                edges.push(p);
-                edges.push(q);
-            }
+    for (a, b) in result.graph.edges() {
+        if let (Some(p), Some(q)) = (centre(a), centre(b)) {
+            edges.push(p);
+            edges.push(q);
         }
     }
     let mut loop_edges = Vec::new();
@@ -1002,8 +1046,8 @@ fn report<const N: usize>(
                 style: Style::Segments,
             },
             Series {
-                label: format!("keyframes ({})", g.num_keyframes()),
-                points: g.keyframes().filter_map(|(k, _)| centre(k)).collect(),
+                label: format!("keyframes ({})", nodes.len()),
+                points: nodes.keys().filter_map(|&k| centre(k)).collect(),
                 color: PALETTE[0],
                 style: Style::Points,
             },

@@ -609,20 +609,29 @@ impl<const N: usize> FrontEnd<N> for SimFrontEnd<'_, N> {
         })
     }
 
-    fn guided_search(
+    /// The world points the keyframe observes, and the predictions.
+    type GuidedSearch = (BTreeSet<usize>, Vec<(PointId, SVector<f64, N>)>);
+
+    fn plan_guided_search(
         &mut self,
         graph: &SlamGraph<N>,
         keyframe: KeyframeId,
         predictions: &[(PointId, SVector<f64, N>)],
+    ) -> Self::GuidedSearch {
+        (self.observed(graph, keyframe), predictions.to_vec())
+    }
+
+    fn guided_search(
+        &mut self,
+        (observed, predictions): Self::GuidedSearch,
     ) -> Vec<(PointId, SVector<f64, N>)> {
-        let observed = self.observed(graph, keyframe);
         let wanted: BTreeMap<usize, SVector<f64, N>> = self.measurements[self.k]
             .iter()
             .filter(|(w, _)| !observed.contains(w))
             .map(|(w, z)| (*w, *z))
             .collect();
         let mut found: BTreeMap<usize, (PointId, SVector<f64, N>)> = BTreeMap::new();
-        for (p, z_hat) in predictions {
+        for (p, z_hat) in &predictions {
             let w = self.world_point(*p);
             if let Some(z) = wanted.get(&w)
                 && !found.contains_key(&w)

@@ -22,11 +22,12 @@ use nalgebra::{Vector2, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use slam::exploration::{ExplorationConfig, ExploredMap, MonoExplorer, TrackId};
+use slam::exploration::{ExplorationConfig, ExploredMap, MonoExplorer, TrackId, rigid_pose};
 use slam::loop_closure::constraint::matched_views;
 use slam::loop_closure::correction::{correct_graph, refine_graph, sim3_pose_graph};
 use slam::loop_closure::{CorrectionGroup, LoopClosureConfig, LoopEdge, estimate_loop_constraint};
 use slam::map::KeyframeId;
+use slam::map::SlamGraph;
 use slam::pose_graph::{PoseGraphJacobian, PoseGraphProblem};
 use std::collections::HashSet;
 use std::time::Instant;
@@ -233,7 +234,7 @@ fn explore(
     settings: &RunSettings,
     frames: &[Vec<(TrackId, Vector2<f64>)>],
     on_frame: &mut dyn FnMut(usize, usize),
-) -> Result<MonoExplorer, ScaleDriftError> {
+) -> Result<(MonoExplorer, SlamGraph<2>), ScaleDriftError> {
     let config = ExplorationConfig {
         sigma: settings.sigma.max(0.1),
         window: settings.window,
@@ -243,11 +244,12 @@ fn explore(
         ..ExplorationConfig::default()
     };
     let mut explorer = MonoExplorer::new(sensor.camera, config);
+    let mut graph = SlamGraph::new();
     for (f, m) in frames.iter().enumerate() {
-        explorer.process(f, m)?;
+        explorer.process(&mut graph, f, m)?;
         on_frame(f + 1, frames.len());
     }
-    Ok(explorer)
+    Ok((explorer, graph))
 }
 
 /// Loop candidates: for each `current` keyframe, the old keyframe at least `min_gap`
@@ -283,7 +285,7 @@ fn best_old_keyframe(
 fn close_and_evaluate(
     sensor: &MonoSensor,
     settings: &RunSettings,
-    explorer: MonoExplorer,
+    (explorer, graph): (MonoExplorer, SlamGraph<2>),
     truth_all: &[Se3],
     world_points: &[Vector3<f64>],
     pairs: &[(usize, usize)],
@@ -291,7 +293,7 @@ fn close_and_evaluate(
     frames: usize,
 ) -> Result<LoopRun, ScaleDriftError> {
     let map = explorer.into_map();
-    let graph = &map.graph;
+    let graph = &graph;
     // The map's scale at a keyframe: median ratio of estimated to true depth of its points.
     let map_scale = |k: KeyframeId| -> f64 {
         let frame = map.keyframe(k).frame;
@@ -345,7 +347,7 @@ fn close_and_evaluate(
             true_scale: map_scale(k_old) / map_scale(k_cur),
         });
     }
-    let explored = map.rigid_poses();
+    let explored: Vec<Se3> = map.keyframe_ids().map(|k| rigid_pose(graph, k)).collect();
     let truth: Vec<Se3> = map.keyframes.iter().map(|k| truth_all[k.frame]).collect();
     let edges: Vec<LoopEdge> = loops.iter().map(|l| l.edge).collect();
     let options = SolverOptions {
@@ -354,13 +356,13 @@ fn close_and_evaluate(
     };
     let jac = PoseGraphJacobian::Analytic(settings.jacobian);
     let se3 = correct_graph(
-        &mut map.graph.clone(),
+        &mut graph.clone(),
         &edges,
         CorrectionGroup::Se3,
         jac,
         &options,
     )?;
-    let mut corrected = map.graph.clone();
+    let mut corrected = graph.clone();
     let sim3 = correct_graph(&mut corrected, &edges, CorrectionGroup::Sim3, jac, &options)?;
     let refined = refine_graph(
         &mut corrected,
@@ -385,7 +387,7 @@ fn close_and_evaluate(
         refined_sim3: refined,
         loops,
         frames,
-        points: map.graph.num_points(),
+        points: graph.num_points(),
         exploration_seconds,
     })
 }
@@ -460,10 +462,10 @@ pub fn run_circle(
     let start = Instant::now();
     let explorer = explore(&sensor, &config.settings, &frames, on_frame)?;
     let seconds = start.elapsed().as_secs_f64();
-    let n = explorer.map().keyframes.len();
+    let n = explorer.0.map().keyframes.len();
     let gap = (n / 2).max(1);
     let current = n - 1;
-    let (old, _) = best_old_keyframe(explorer.map(), current, gap, 20)
+    let (old, _) = best_old_keyframe(explorer.0.map(), current, gap, 20)
         .ok_or_else(|| ScaleDriftError::NoLoop("the last keyframe sees no old one".into()))?;
     close_and_evaluate(
         &sensor,
@@ -542,7 +544,7 @@ pub fn run_sphere(
     let start = Instant::now();
     let explorer = explore(&sensor, &config.settings, &frames, on_frame)?;
     let seconds = start.elapsed().as_secs_f64();
-    let kfs = explorer.map();
+    let kfs = explorer.0.map();
     let n = kfs.keyframes.len();
     // An earlier turn: at least half a turn's worth of keyframes back.
     let gap = ((n as f64 / config.turns) * 0.5).ceil() as usize;

@@ -48,6 +48,8 @@ pub struct KeyframeAssociation<'a> {
     /// (`crate::tracker::TrackedThen`): a pose tracked before another thread moved the map is
     /// rebased at insertion. `None`: the pose is as of the graph at insertion.
     pub tracked_against: Option<(KeyframeId, Sim3, Version)>,
+    /// The keyframe is the first of a new map (`slam::mapping::FrontEnd::new_map`).
+    pub new_map: bool,
     scratch: SearchScratch,
 }
 
@@ -80,6 +82,7 @@ impl<'a> KeyframeAssociation<'a> {
             next_track,
             created: Vec::new(),
             tracked_against: None,
+            new_map: false,
             scratch: SearchScratch::default(),
         }
     }
@@ -128,39 +131,35 @@ pub struct GuidedSearch<'a> {
     pub min_disparity: f64,
 }
 
-impl GuidedSearch<'_> {
-    /// Searches `points` of `graph` with the frame at `camera_from_world`; returns the found
-    /// points' measurements.
-    pub fn run(
-        &self,
-        graph: &SlamGraph<3>,
-        camera_from_world: &Se3,
-        points: impl IntoIterator<Item = PointId>,
-        scratch: &mut SearchScratch,
-    ) -> Vec<(PointId, Vector3<f64>)> {
-        self.run_counted(graph, camera_from_world, points, scratch)
-            .0
-    }
+/// What guided search needs of `points` of `graph` (copied out under its read lock).
+pub fn search_points(
+    graph: &SlamGraph<3>,
+    points: impl IntoIterator<Item = PointId>,
+) -> Vec<SearchPoint> {
+    points
+        .into_iter()
+        .filter_map(|p| SearchPoint::from_graph(graph, p))
+        .collect()
+}
 
-    /// [`GuidedSearch::run`], with the number of points predicted visible (searched): how
-    /// much of what should be there was found.
+impl GuidedSearch<'_> {
+    /// Searches `points` ([`search_points`]) with the frame at `camera_from_world`; returns
+    /// the found points' measurements, and the number of points predicted visible (searched):
+    /// how much of what should be there was found.
     pub fn run_counted(
         &self,
-        graph: &SlamGraph<3>,
         camera_from_world: &Se3,
-        points: impl IntoIterator<Item = PointId>,
+        points: &[SearchPoint],
         scratch: &mut SearchScratch,
     ) -> (Vec<(PointId, Vector3<f64>)>, usize) {
         let camera = *self.sensor.pinhole();
         let (w, h) = (self.frame.gray().width(), self.frame.gray().height());
         let mut found = Vec::new();
         let mut predicted = 0;
-        for p in points {
-            let Some(point) = SearchPoint::from_graph(graph, p) else {
-                continue;
-            };
-            let visible = predict(&camera, camera_from_world, &point, w, h, 6.0).is_some()
-                && view_angle(camera_from_world, &point) < self.max_view_angle;
+        for point in points {
+            let p = point.point;
+            let visible = predict(&camera, camera_from_world, point, w, h, 6.0).is_some()
+                && view_angle(camera_from_world, point) < self.max_view_angle;
             let Some(anchor) = self.store.get(point.anchor).filter(|_| visible) else {
                 continue;
             };
@@ -168,7 +167,7 @@ impl GuidedSearch<'_> {
             let Some(u) = search(
                 &camera,
                 camera_from_world,
-                &point,
+                point,
                 anchor,
                 self.frame.gray(),
                 &self.frame.corners,
@@ -213,13 +212,24 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
         None
     }
 
-    fn guided_search(
+    /// The keyframe's pose and the predicted points.
+    type GuidedSearch = Option<(Se3, Vec<SearchPoint>)>;
+
+    fn plan_guided_search(
         &mut self,
         graph: &SlamGraph<3>,
         keyframe: KeyframeId,
         predictions: &[(PointId, SVector<f64, 3>)],
-    ) -> Vec<(PointId, SVector<f64, 3>)> {
-        let Ok(pose) = graph.pose(keyframe) else {
+    ) -> Self::GuidedSearch {
+        let pose = graph.pose(keyframe).ok()?;
+        Some((
+            pose.rigid_part(),
+            search_points(graph, predictions.iter().map(|(p, _)| *p)),
+        ))
+    }
+
+    fn guided_search(&mut self, plan: Self::GuidedSearch) -> Vec<(PointId, SVector<f64, 3>)> {
+        let Some((pose, points)) = plan else {
             return Vec::new();
         };
         // Every candidate of N2 \ N1 (thesis §6.4.1) that passes PTAM's visibility test.
@@ -232,12 +242,12 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
             max_view_angle: self.max_view_angle,
             min_disparity: self.min_disparity,
         }
-        .run(
-            graph,
-            &pose.rigid_part(),
-            predictions.iter().map(|(p, _)| *p),
-            &mut self.scratch,
-        )
+        .run_counted(&pose, &points, &mut self.scratch)
+        .0
+    }
+
+    fn new_map(&self) -> bool {
+        self.new_map
     }
 
     fn measurements(

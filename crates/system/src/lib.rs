@@ -6,17 +6,32 @@
 //! kernels), `data` (the frames and the outputs) and `geom` (cameras). It adds what only a live
 //! system has: sensor front-ends, the per-frame tracker, the keyframe policy, place
 //! recognition, and the threads of thesis §6.5.2. It knows no simulator.
+//!
+//! The caller's part: a [`System`] made for a sensor with a [`SystemConfig`] and [`Options`],
+//! driven frame by frame through [`LiveRun`], ending in a [`RunResult`].
 
 #![warn(missing_docs)]
 
 pub mod association;
 pub mod config;
 pub mod dense_model;
+pub(crate) mod depth;
 pub mod frame;
 pub mod keyframes;
-pub mod live;
 pub mod loops;
-pub mod mono;
+pub(crate) mod mono;
 pub mod place_recognition;
+pub mod result;
 pub mod search;
+pub(crate) mod session;
+mod system;
 pub mod tracker;
+
+pub use config::SystemConfig;
+pub use result::{
+    FrameReport, KeyframeNode, LiveRun, LockWaits, LoopEvent, Mode, NewMap, Progress, RefusedLoop,
+    Relocalisation, RunGraph, RunResult, SystemError,
+};
+pub use session::backend::Fault;
+pub use session::sensor::Faults;
+pub use system::{Options, System};

@@ -23,26 +23,29 @@
 //!    window optimisation then corrects the poses; in the threaded system the loop closer
 //!    wakes it.
 //!
-//! The same [`LoopCloser::process`] runs in the loop-closure thread ([`crate::live::Mode::
-//! Threaded`]) and inline after each keyframe (deterministic mode).
+//! The same [`LoopCloser::process`] runs in the loop-closure thread ([`crate::Mode::Threaded`],
+//! a stage of the session's back-end, `crate::session::backend`) and inline after each
+//! keyframe (deterministic mode).
 
-use crate::association::GuidedSearch;
+use crate::association::{GuidedSearch, search_points};
 use crate::config::SystemConfig;
 use crate::frame::{FrameData, SensorFrontEnd, pixel_depth};
 use crate::keyframes::KeyframeStore;
 use crate::place_recognition::{
     LoopCandidate, PlaceRecognition, PlaceRecognitionConfig, PlaceRecognitionError, features,
 };
+pub use crate::result::LoopEvidence;
 use crate::search::SearchScratch;
-use data::output::StageTimings;
 use geom::StereoCamera;
 use lie::LieGroup;
 use slam::loop_closure::LoopDrift;
+use slam::map::shared::{read_lock, write_lock};
 use slam::map::{KeyframeId, PointId, SharedGraph, SlamGraph};
 use slam::mapping::{AppearanceClosure, AppearanceMatch, Mapper, MappingConfig, MappingError};
 use std::collections::BTreeSet;
+use std::sync::mpsc::SyncSender;
 use std::sync::{Arc, RwLock};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 use vision::bow::Vocabulary;
 
 /// One keyframe for the loop closer.
@@ -71,19 +74,6 @@ pub struct AppearanceLoop {
     pub merged: Option<(usize, f64)>,
 }
 
-/// What an appearance loop of the stereo and RGB-D system rests on: a person reading the run
-/// tells a strong loop from a weak one by it (a place that only looks like another — repeated
-/// façades — gives a few RANSAC inliers and finds a few per cent of the old place's points).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct LoopEvidence {
-    /// Inliers of the 3-point RANSAC on the ORB matches (thesis eq. 6.9).
-    pub ransac_inliers: usize,
-    /// Old-place map points found by the guided matching at the pose the loop implies.
-    pub old_points_found: usize,
-    /// Old-place map points predicted visible there (searched).
-    pub old_points_predicted: usize,
-}
-
 /// Why the loop closer failed (a keyframe without a loop is not a failure).
 #[derive(Debug, thiserror::Error)]
 pub enum LoopError {
@@ -110,25 +100,31 @@ pub struct LoopCloser {
     min_ncc: f32,
     max_view_angle: f64,
     scratch: SearchScratch,
-    /// Time of each stage.
-    pub timings: StageTimings,
+    /// The keyframes' images (templates of the guided matching, the keyframes' frames).
+    store: Arc<RwLock<KeyframeStore>>,
+    /// Wakes the optimiser's thread after a loop is closed (threaded: the optimisation
+    /// corrects the poses; inline the optimisation follows anyway).
+    wake: Option<SyncSender<(u64, ())>>,
+    /// Time of each stage of the job in hand.
+    timings: Vec<(&'static str, Duration)>,
     /// Loops verified by appearance but refused for the correction they needed: (new
-    /// keyframe, old keyframe, the correction against the path).
-    pub refused: Vec<(KeyframeId, KeyframeId, LoopDrift)>,
+    /// keyframe, old keyframe, the correction against the path), of the job in hand.
+    refused: Vec<(KeyframeId, KeyframeId, LoopDrift)>,
 }
 
 impl LoopCloser {
     /// A loop closer with `vocabulary` for the sensor `sensor` and the system's `config`;
     /// `mapping` are the keyframe pipeline's parameters (the loop needs as many matches as a
-    /// loop of the pipeline).
+    /// loop of the pipeline); `store` holds the keyframes' images.
     pub fn new(
         vocabulary: Arc<Vocabulary>,
         sensor: SensorFrontEnd,
         config: &SystemConfig,
         mapping: MappingConfig,
+        store: Arc<RwLock<KeyframeStore>>,
     ) -> Result<Self, PlaceRecognitionError> {
-        let mut place = config.loops.place_recognition.clone();
-        place.depth_noise = config.depth_noise_for(sensor.camera(), sensor.measures_disparity());
+        let place =
+            config.place_recognition_for(Some((sensor.camera(), sensor.measures_disparity())));
         Ok(LoopCloser {
             recogniser: Arc::new(RwLock::new(PlaceRecognition::new(
                 vocabulary,
@@ -143,14 +139,42 @@ impl LoopCloser {
             min_ncc: config.tracker.min_ncc,
             max_view_angle: config.tracker.max_view_angle_deg.to_radians(),
             scratch: SearchScratch::default(),
-            timings: StageTimings::default(),
+            store,
+            wake: None,
+            timings: Vec::new(),
             refused: Vec::new(),
         })
     }
 
+    /// The same closer on the same database (a closer lost with its thread made again).
+    pub fn again(&self) -> Self {
+        LoopCloser {
+            recogniser: self.recogniser.clone(),
+            place: self.place.clone(),
+            mapper: self.mapper.clone(),
+            sensor: self.sensor.clone(),
+            exclusion_hops: self.exclusion_hops,
+            exclusion_recent: self.exclusion_recent,
+            radius: self.radius,
+            min_ncc: self.min_ncc,
+            max_view_angle: self.max_view_angle,
+            scratch: SearchScratch::default(),
+            store: self.store.clone(),
+            wake: self.wake.clone(),
+            timings: Vec::new(),
+            refused: Vec::new(),
+        }
+    }
+
+    /// Wakes the optimiser's thread through `wake` after each loop closed.
+    pub fn waking(mut self, wake: Option<SyncSender<(u64, ())>>) -> Self {
+        self.wake = wake;
+        self
+    }
+
     /// The place-recognition database (shared: see [`LoopCloser::shared_database`]).
     fn database(&self) -> std::sync::RwLockReadGuard<'_, PlaceRecognition> {
-        self.recogniser.read().unwrap_or_else(|e| e.into_inner())
+        read_lock(&self.recogniser)
     }
 
     /// The database, for relocalising lost frames from another thread
@@ -188,11 +212,8 @@ impl LoopCloser {
             self.sensor.pinhole(),
             &self.place,
         )?;
-        self.recogniser
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(job.keyframe, features)?;
-        self.timings.record("loop: ORB features", t.elapsed());
+        write_lock(&self.recogniser).insert(job.keyframe, features)?;
+        self.timings.push(("loop: ORB features", t.elapsed()));
         let t = Instant::now();
         let excluded = {
             let g = graph.read();
@@ -204,17 +225,18 @@ impl LoopCloser {
             close
         };
         let candidate = self.database().detect(job.keyframe, &excluded)?;
-        self.timings.record("loop: detect and verify", t.elapsed());
+        self.timings.push(("loop: detect and verify", t.elapsed()));
         let Some(candidate) = candidate else {
             return Ok(None);
         };
         let t = Instant::now();
         let place = {
-            let store = store.read().unwrap_or_else(|e| e.into_inner());
-            let g = graph.read();
-            self.map_matches(&g, &store, job, &candidate)
+            // What the search needs, copied under the graph's read lock; the search with none.
+            let planned = self.plan_map_matches(&graph.read(), job, &candidate);
+            let store = read_lock(store);
+            planned.map(|plan| self.map_matches(&store, job, &candidate, plan))
         };
-        self.timings.record("loop: guided matching", t.elapsed());
+        self.timings.push(("loop: guided matching", t.elapsed()));
         let Some((place, map_predicted)) = place else {
             return Ok(None);
         };
@@ -224,10 +246,18 @@ impl LoopCloser {
             old_points_found: place.correspondences.len(),
             old_points_predicted: map_predicted,
         };
-        let closure =
-            self.mapper
-                .close_appearance_loop(&mut graph.write(), job.keyframe, &place)?;
-        self.timings.record("loop: close", t.elapsed());
+        // Planned under a read lock, fitted with none, written under a short write lock (the
+        // loop's measurement is relative: the graph may move in between).
+        let plan = self
+            .mapper
+            .plan_appearance_loop(&graph.read(), job.keyframe, &place)?;
+        let closure = match self.mapper.fit_appearance_loop(plan) {
+            Some(fit) => self
+                .mapper
+                .apply_appearance_loop(&mut graph.write(), &fit)?,
+            None => AppearanceClosure::TooFewMatches,
+        };
+        self.timings.push(("loop: close", t.elapsed()));
         Ok(match closure {
             AppearanceClosure::Closed { old, drift } => Some(AppearanceLoop {
                 keyframe: job.keyframe,
@@ -255,25 +285,48 @@ impl LoopCloser {
         })
     }
 
+    /// What the guided matching of the old place needs of the graph: the pose the loop
+    /// implies, the old place's map points the new keyframe does not observe, and the new
+    /// keyframe's observations.
+    fn plan_map_matches(
+        &self,
+        graph: &SlamGraph<3>,
+        job: &LoopJob,
+        candidate: &LoopCandidate,
+    ) -> Option<MatchPlan> {
+        let old_pose = graph.pose(candidate.old).ok()?;
+        let implied = candidate.query_from_old.compose(&old_pose).rigid_part();
+        let own = graph.keyframe(job.keyframe)?.observations().clone();
+        let mut place: Vec<KeyframeId> = graph.n1(candidate.old);
+        place.push(candidate.old);
+        let points = search_points(
+            graph,
+            graph
+                .points_visible_from(&place)
+                .into_iter()
+                .filter(|p| !own.contains_key(p)),
+        );
+        Some(MatchPlan {
+            implied,
+            points,
+            own,
+        })
+    }
+
     /// The old place's map points found in the new keyframe at the pose the loop implies,
     /// and how many were predicted visible there.
     fn map_matches(
         &mut self,
-        graph: &SlamGraph<3>,
         store: &KeyframeStore,
         job: &LoopJob,
         candidate: &LoopCandidate,
-    ) -> Option<(AppearanceMatch<3>, usize)> {
-        let old_pose = graph.pose(candidate.old).ok()?;
-        let implied = candidate.query_from_old.compose(&old_pose).rigid_part();
-        let own = graph.keyframe(job.keyframe)?.observations();
-        let mut place: Vec<KeyframeId> = graph.n1(candidate.old);
-        place.push(candidate.old);
-        let points: Vec<PointId> = graph
-            .points_visible_from(&place)
-            .into_iter()
-            .filter(|p| !own.contains_key(p))
-            .collect();
+        plan: MatchPlan,
+    ) -> (AppearanceMatch<3>, usize) {
+        let MatchPlan {
+            implied,
+            points,
+            own,
+        } = plan;
         let (found, predicted) = GuidedSearch {
             frame: &job.frame,
             store,
@@ -283,7 +336,7 @@ impl LoopCloser {
             max_view_angle: self.max_view_angle,
             min_disparity: self.mapper.config().min_disparity,
         }
-        .run_counted(graph, &implied, points, &mut self.scratch);
+        .run_counted(&implied, &points, &mut self.scratch);
         // The new keyframe's own point at a found pixel, if it has one there (then its
         // position, not the measurement's depth, enters the alignment).
         let same_pixel = 1.5f64;
@@ -297,14 +350,80 @@ impl LoopCloser {
                 (p, z, here)
             })
             .collect();
-        Some((
+        (
             AppearanceMatch {
                 old: candidate.old,
                 correspondences,
             },
             predicted,
-        ))
+        )
     }
+}
+
+impl crate::session::backend::Stage<3> for LoopCloser {
+    type Job = LoopJob;
+    type Output = crate::session::LoopOutput<()>;
+
+    /// [`LoopCloser::process`]: the loop it closed (with the frames of its keyframes), the
+    /// loops it refused, the failure as a warning, the time of each stage.
+    fn run(&mut self, graph: &SharedGraph<3>, job: &LoopJob, out: &mut Vec<Self::Output>) {
+        use crate::result::{LoopEvent, RefusedLoop};
+        use crate::session::LoopOutput;
+        let store = self.store.clone();
+        let result = self.process(graph, &store, job);
+        let frames = |a: KeyframeId, b: KeyframeId| {
+            let store = read_lock(&store);
+            let frame_of = |k: KeyframeId| store.get(k).map_or(usize::MAX, |i| i.frame_index);
+            (frame_of(a), frame_of(b))
+        };
+        match result {
+            Ok(Some(event)) => {
+                out.push(LoopOutput::Loop(LoopEvent {
+                    keyframe: event.keyframe,
+                    old: event.old,
+                    frames: frames(event.keyframe, event.old),
+                    kind: if event.merged.is_some() {
+                        "merge"
+                    } else {
+                        "appearance"
+                    },
+                    scale: None,
+                    correction: event.drift,
+                    evidence: Some(event.evidence),
+                }));
+                // The optimisation corrects the poses; a pending wake-up will see the loop
+                // too.
+                if let Some(wake) = &self.wake {
+                    let _ = wake.try_send((u64::MAX, ()));
+                }
+            }
+            Ok(None) => {}
+            Err(e) => out.push(LoopOutput::Warning(format!(
+                "loop closure at {}: {e}",
+                job.keyframe
+            ))),
+        }
+        let limits = self.mapper.config().appearance_max_drift;
+        for (k, old, drift) in self.refused.drain(..) {
+            out.push(LoopOutput::Refused(RefusedLoop {
+                frames: frames(k, old),
+                drift,
+                allowed: drift.allowed(&limits),
+            }));
+        }
+        out.extend(
+            self.timings
+                .drain(..)
+                .map(|(stage, d)| LoopOutput::Timing(stage, d)),
+        );
+    }
+}
+
+/// The guided matching of an appearance loop, planned ([`LoopCloser`]'s `plan_map_matches`).
+struct MatchPlan {
+    implied: lie::Se3,
+    points: Vec<crate::search::SearchPoint>,
+    own: std::collections::BTreeMap<PointId, nalgebra::Vector3<f64>>,
 }
 
 /// `k` and the `n` keyframes made just before it (keyframe ids count up in the order the

@@ -9,8 +9,8 @@ use data::sequence::{BadFramePolicy, Frame, FrameImages, OpenOptions, Sequence};
 use lie::LieGroup;
 use std::path::{Path, PathBuf};
 use system::config::SystemConfig;
-use system::live::{LiveRun, LiveSystem, Mode, RunResult};
 use system::place_recognition::vocabulary::default_vocabulary;
+use system::{LiveRun, Mode, Options, RunGraph, RunResult, System};
 
 fn seven_scenes() -> Option<PathBuf> {
     paths::require("seven_scenes_redkitchen_1000")
@@ -27,7 +27,7 @@ fn run_with(path: &Path, frames: Vec<Frame>, mode: Mode, config: SystemConfig) -
 }
 
 /// [`run_with`], the keyframes' depth images kept in the store or not
-/// (`LiveSystem::keyframe_depth`).
+/// (`Options::keyframe_depth`).
 fn run_keeping(
     path: &Path,
     frames: Vec<Frame>,
@@ -38,11 +38,18 @@ fn run_keeping(
     let sequence = Sequence::open(path, &OpenOptions::default()).unwrap();
     let sensor = sequence.info().camera;
     let vocabulary = std::sync::Arc::new(default_vocabulary().unwrap());
-    let mut system = LiveSystem::new(&sensor, config, mode, "test")
-        .unwrap()
-        .keyframe_depth(keyframe_depth)
-        .with_loop_closure(vocabulary)
-        .unwrap();
+    let mut system = System::new(
+        &sensor,
+        config,
+        Options {
+            mode,
+            sequence: "test".into(),
+            vocabulary: Some(vocabulary),
+            keyframe_depth,
+            ..Options::default()
+        },
+    )
+    .unwrap();
     for f in frames {
         system.process(f).unwrap();
     }
@@ -324,11 +331,14 @@ fn a_kidnapped_camera_is_relocalised() {
             .count()
     };
     let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
-    let mut system = LiveSystem::new(
+    let mut system = System::new(
         &sequence.info().camera,
         SystemConfig::default(),
-        Mode::Deterministic,
-        "test",
+        Options {
+            mode: Mode::Deterministic,
+            sequence: "test".into(),
+            ..Options::default()
+        },
     )
     .unwrap();
     for f in frames.clone() {
@@ -594,9 +604,11 @@ fn a_camera_lost_early_for_good_writes_the_larger_new_map() {
         r.record.keyframes.len(),
         r.graph
             .keyframes()
-            .filter(|(k, _)| r.graph.map_of(*k) == Ok(m.map))
+            .iter()
+            .filter(|k| k.map == m.map)
             .count()
     );
+    assert!(matches!(r.graph, RunGraph::Depth(_)));
     println!(
         "new map at {first}, {} frames with a pose, ATE {live:.4} m",
         est.len()
@@ -646,11 +658,14 @@ fn a_corrupt_image_file_is_skipped_with_its_reason() {
     };
     let sequence = Sequence::open(&dir, &options).unwrap();
     let sensor = sequence.info().camera;
-    let mut system = LiveSystem::new(
+    let mut system = System::new(
         &sensor,
         SystemConfig::default(),
-        Mode::Deterministic,
-        "test",
+        Options {
+            mode: Mode::Deterministic,
+            sequence: "test".into(),
+            ..Options::default()
+        },
     )
     .unwrap();
     let mut skipped = 0;

@@ -7,8 +7,8 @@ use data::paths;
 use data::sequence::{Frame, OpenOptions, Sequence};
 use std::path::Path;
 use system::config::SystemConfig;
-use system::live::{LiveSystem, Mode, RunResult};
 use system::place_recognition::vocabulary::default_vocabulary;
+use system::{LiveRun, Mode, Options, RunResult, System};
 
 /// The frames of the sequence at `path`, in order.
 fn frames(path: &Path) -> Vec<Frame> {
@@ -26,14 +26,16 @@ fn run(path: &Path, frames: Vec<Frame>) -> RunResult {
         .info()
         .camera;
     let vocabulary = std::sync::Arc::new(default_vocabulary().unwrap());
-    let mut system = LiveSystem::new(
+    let mut system = System::new(
         &sensor,
         SystemConfig::default(),
-        Mode::Deterministic,
-        "test",
+        Options {
+            mode: Mode::Deterministic,
+            sequence: "test".into(),
+            vocabulary: Some(vocabulary),
+            ..Options::default()
+        },
     )
-    .unwrap()
-    .with_loop_closure(vocabulary)
     .unwrap();
     for f in frames {
         system.process(f).unwrap();

@@ -13,8 +13,7 @@ use data::paths;
 use data::sequence::{OpenOptions, Sequence};
 use lie::{LieGroup, Se3};
 use system::config::SystemConfig;
-use system::live::{LiveRun, RunResult};
-use system::mono::MonoSystem;
+use system::{LiveRun, Mode, Options, RunResult, System};
 
 /// The grey image of a 7-Scenes (RGB-D or colour-only) frame, to alter.
 fn grey_mut(frame: &mut data::sequence::Frame) -> &mut vision::image::GrayImage {
@@ -25,8 +24,29 @@ fn grey_mut(frame: &mut data::sequence::Frame) -> &mut vision::image::GrayImage 
     }
 }
 
+/// A deterministic monocular system for `camera` with `config` (and loop closure with
+/// `vocabulary`).
+fn mono(
+    camera: geom::PinholeCamera,
+    config: SystemConfig,
+    name: &str,
+    vocabulary: Option<std::sync::Arc<vision::bow::Vocabulary>>,
+) -> System {
+    System::new(
+        &data::camera::SensorModel::Mono(camera),
+        config,
+        Options {
+            mode: Mode::Deterministic,
+            sequence: name.into(),
+            vocabulary,
+            ..Options::default()
+        },
+    )
+    .unwrap()
+}
+
 struct Scored {
-    result: RunResult<2>,
+    result: RunResult,
     /// Frames with a live pose.
     tracked: usize,
     frames: usize,
@@ -41,7 +61,7 @@ fn run(name: &str, frames: usize) -> Option<Scored> {
     let path = paths::require(name)?;
     let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
     let camera = *sequence.info().camera.pinhole();
-    let mut system = MonoSystem::new(camera, SystemConfig::default(), name).unwrap();
+    let mut system = mono(camera, SystemConfig::default(), name, None);
     let mut truth = Vec::new();
     let n = frames.min(sequence.len());
     for k in 0..n {
@@ -169,7 +189,7 @@ fn gaps_black_textureless_and_unreadable_frames_are_reported_and_the_run_goes_on
     let camera = *sequence.info().camera.pinhole();
     // Frames 0–119 (initialised by ~50), a gap of 5, to 160, a gap of 30, to 260.
     let indices: Vec<usize> = (0..120).chain(125..160).chain(190..260).collect();
-    let mut system = MonoSystem::new(camera, SystemConfig::default(), "hard").unwrap();
+    let mut system = mono(camera, SystemConfig::default(), "hard", None);
     let (black, unreadable) = (100, 110);
     let textureless = 200..215;
     for &k in &indices {
@@ -275,7 +295,7 @@ fn a_purely_rotating_camera_is_never_initialised_and_says_why() {
     let camera = *sequence.info().camera.pinhole();
     let first = sequence.read(0).unwrap().unwrap();
     let source = first.gray().clone();
-    let mut system = MonoSystem::new(camera, SystemConfig::default(), "rotation").unwrap();
+    let mut system = mono(camera, SystemConfig::default(), "rotation", None);
     let (w, h) = (source.width(), source.height());
     for k in 0..40usize {
         let angle = (0.5 * k as f64).to_radians() as f32;
@@ -321,18 +341,13 @@ fn a_purely_rotating_camera_is_never_initialised_and_says_why() {
 /// a camera never lost (the same frames without the cut) do.
 /// 7-Scenes (`None` without the data) and a monocular system for it with `config` and the
 /// shipped vocabulary, made by the returned function.
-fn seven_scenes_with_loops() -> Option<(Sequence, impl Fn(SystemConfig) -> MonoSystem)> {
+fn seven_scenes_with_loops() -> Option<(Sequence, impl Fn(SystemConfig) -> System)> {
     let path = paths::require("seven_scenes_redkitchen_1000")?;
     let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
     let camera = *sequence.info().camera.pinhole();
     let vocabulary =
         std::sync::Arc::new(system::place_recognition::vocabulary::default_vocabulary().unwrap());
-    let system = move |config| {
-        MonoSystem::new(camera, config, "cut")
-            .unwrap()
-            .with_loop_closure(vocabulary.clone())
-            .unwrap()
-    };
+    let system = move |config| mono(camera, config, "cut", Some(vocabulary.clone()));
     Some((sequence, system))
 }
 
@@ -366,7 +381,7 @@ fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
         "{first:?}"
     );
     // The error after `from` under one similarity, fitted to the frames before the loss.
-    let after_loss = |r: &RunResult<2>, from: usize| {
+    let after_loss = |r: &RunResult, from: usize| {
         let posed: Vec<(usize, Se3)> = r
             .record
             .frames

@@ -208,12 +208,10 @@ pub struct KeyframeFrame {
     pub measurements: Vec<(TrackId, Vector2<f64>)>,
 }
 
-/// The map an exploration builds: the SLAM graph, and the front-end's identities of its
-/// keyframes and points.
+/// What an exploration knows of the map it builds in a [`SlamGraph`] besides the graph: the
+/// front-end's identities of its keyframes and points.
 #[derive(Clone, Debug, Default)]
 pub struct ExploredMap {
-    /// Keyframes, anchored inverse-depth points and their measurements.
-    pub graph: SlamGraph<2>,
     /// Per keyframe (indexed by [`KeyframeId::index`]): its frame and measurements.
     pub keyframes: Vec<KeyframeFrame>,
     /// Per point (indexed by [`PointId::index`]): the track it was initialised from.
@@ -231,34 +229,19 @@ impl ExploredMap {
         self.tracks[p.index()]
     }
 
-    /// The keyframes in order of creation.
+    /// The keyframes in order of creation (of every map the exploration started).
     pub fn keyframe_ids(&self) -> impl Iterator<Item = KeyframeId> + '_ {
         (0..self.keyframes.len()).map(KeyframeId::from_index)
     }
 
-    /// The rigid pose of keyframe `k` (`(R, t/s)` of its similarity, see
-    /// [`crate::pose_graph::rigid_from_similarity`]).
-    pub fn rigid_pose(&self, k: KeyframeId) -> Se3 {
-        crate::pose_graph::rigid_from_similarity(
-            self.graph
-                .keyframe(k)
-                .expect("keyframes are never removed")
-                .camera_from_world(),
-        )
-    }
-
-    /// The rigid poses of every keyframe, in order.
-    pub fn rigid_poses(&self) -> Vec<Se3> {
-        self.keyframe_ids().map(|k| self.rigid_pose(k)).collect()
-    }
-
     fn add_keyframe(
         &mut self,
+        graph: &mut SlamGraph<2>,
         frame: usize,
         pose: Se3,
         measurements: &[(TrackId, Vector2<f64>)],
     ) -> KeyframeId {
-        let k = self.graph.add_keyframe(Sim3::from_se3(&pose));
+        let k = graph.add_keyframe(Sim3::from_se3(&pose));
         debug_assert_eq!(k.index(), self.keyframes.len());
         self.keyframes.push(KeyframeFrame {
             frame,
@@ -271,14 +254,15 @@ impl ExploredMap {
     /// `None` if it is not in front of the anchor.
     fn add_point(
         &mut self,
+        graph: &mut SlamGraph<2>,
         track: TrackId,
         anchor: KeyframeId,
         point_world: &Vector3<f64>,
         z: Vector2<f64>,
     ) -> Option<PointId> {
-        let t_a = *self.graph.keyframe(anchor)?.camera_from_world();
+        let t_a = *graph.keyframe(anchor)?.camera_from_world();
         let psi = point_to_inverse_depth(&t_a.act(point_world))?;
-        let p = self.graph.add_point(anchor, psi, z).ok()?;
+        let p = graph.add_point(anchor, psi, z).ok()?;
         debug_assert_eq!(p.index(), self.tracks.len());
         self.tracks.push(track);
         Some(p)
@@ -351,11 +335,38 @@ enum State {
     },
 }
 
-/// Monocular exploration over feature tracks (see the [module docs](self)).
+/// The rigid pose of keyframe `k` of `graph` (`(R, t/s)` of its similarity, see
+/// [`crate::pose_graph::rigid_from_similarity`]): the pose of a monocular keyframe in its map's
+/// metric.
+pub fn rigid_pose<const N: usize>(graph: &SlamGraph<N>, k: KeyframeId) -> Se3 {
+    crate::pose_graph::rigid_from_similarity(
+        graph
+            .keyframe(k)
+            .expect("an exploration's keyframes are never removed")
+            .camera_from_world(),
+    )
+}
+
+/// The scale of keyframe `k`'s similarity.
+fn scale(graph: &SlamGraph<2>, k: KeyframeId) -> f64 {
+    graph
+        .keyframe(k)
+        .expect("an exploration's keyframes are never removed")
+        .camera_from_world()
+        .scale()
+}
+
+/// Monocular exploration over feature tracks (see the [module docs](self)), building its map
+/// in a [`SlamGraph`] the caller keeps and passes to every call that reads or changes it (the
+/// live system shares it between threads). Several maps can be explored one after the other in
+/// one graph ([`MonoExplorer::start_map`]).
 pub struct MonoExplorer {
     camera: PinholeCamera,
     config: ExplorationConfig,
     map: ExploredMap,
+    /// The first keyframe of the current map (its index): keyframes before it belong to maps
+    /// explored before.
+    map_start: usize,
     /// Tracks with a map point that were measured in the last frame.
     active: HashMap<TrackId, PointId>,
     filters: FeatureFilters<PinholeCamera, 2>,
@@ -398,6 +409,7 @@ impl MonoExplorer {
             filters: FeatureFilters::new(camera, fi),
             config,
             map: ExploredMap::default(),
+            map_start: 0,
             active: HashMap::new(),
             filter_of_track: HashMap::new(),
             keyframe_of_frame: HashMap::new(),
@@ -406,17 +418,23 @@ impl MonoExplorer {
         }
     }
 
-    /// The map so far.
+    /// The keyframes' and points' records so far (the map itself is the caller's graph).
     pub fn map(&self) -> &ExploredMap {
         &self.map
     }
 
-    /// `(frame, camera_from_world)` of every tracked frame (keyframe poses as last optimised).
-    pub fn frame_poses(&self) -> Vec<(usize, Se3)> {
+    /// The keyframes of the current map, oldest first.
+    pub fn map_keyframes(&self) -> impl Iterator<Item = KeyframeId> + '_ {
+        (self.map_start..self.map.keyframes.len()).map(KeyframeId::from_index)
+    }
+
+    /// `(frame, camera_from_world)` of every tracked frame (keyframe poses as last optimised in
+    /// `graph`).
+    pub fn frame_poses(&self, graph: &SlamGraph<2>) -> Vec<(usize, Se3)> {
         self.frame_poses
             .iter()
             .map(|(f, t)| match self.keyframe_of_frame.get(f) {
-                Some(&k) => (*f, self.map.rigid_pose(k)),
+                Some(&k) => (*f, rigid_pose(graph, k)),
                 None => (*f, *t),
             })
             .collect()
@@ -452,8 +470,8 @@ impl MonoExplorer {
     /// a point the front-end found again (guided search on a revisit, thesis §6.2.5) rejoins
     /// tracking, the keyframes' measurements and the window BA. A filter the track had is
     /// dropped. `false` if the point does not exist or another track already measures it.
-    pub fn associate(&mut self, track: TrackId, point: PointId) -> bool {
-        if self.map.graph.point(point).is_none() || self.active.values().any(|&p| p == point) {
+    pub fn associate(&mut self, graph: &SlamGraph<2>, track: TrackId, point: PointId) -> bool {
+        if graph.point(point).is_none() || self.active.values().any(|&p| p == point) {
             return false;
         }
         if let Some(id) = self.filter_of_track.remove(&track) {
@@ -472,7 +490,7 @@ impl MonoExplorer {
     /// processing the frame. `false` (nothing changed) before the bootstrap: there is no map
     /// to return to.
     pub fn relocalise(&mut self, frame: usize, camera_from_world: Se3) -> bool {
-        if self.map.keyframes.is_empty() {
+        if self.map_keyframes().next().is_none() {
             return false;
         }
         self.active.clear();
@@ -486,6 +504,24 @@ impl MonoExplorer {
         true
     }
 
+    /// Ends the current map: the next [`process`](Self::process)ed frame is the first of a new
+    /// bootstrap, in a map of its own in `graph` ([`SlamGraph::start_map`]: a frame and a scale
+    /// of its own; the keyframes and points of the maps before stay). The tracks' associations
+    /// and the running filters are dropped. A map that has no keyframe yet (a bootstrap given
+    /// up) is not ended, only started again. Returns the map the next keyframes join.
+    pub fn start_map(&mut self, graph: &mut SlamGraph<2>) -> usize {
+        self.active.clear();
+        self.filters.retain(|_, _| false);
+        self.filter_of_track.clear();
+        self.state = State::Empty;
+        if self.map_keyframes().next().is_some() {
+            self.map_start = self.map.keyframes.len();
+            graph.start_map()
+        } else {
+            graph.current_map()
+        }
+    }
+
     /// Corrects the map by `correct` — a loop correction that moves and rescales keyframes
     /// (thesis ch. 5, [`crate::loop_closure::correction::correct_graph`]; anchored points
     /// follow their keyframes) — and carries the exploration with it: the last frame's pose
@@ -495,16 +531,17 @@ impl MonoExplorer {
     /// Nothing changes if `correct` fails.
     pub fn correct_map<E>(
         &mut self,
+        graph: &mut SlamGraph<2>,
         correct: impl FnOnce(&mut SlamGraph<2>) -> Result<(), E>,
     ) -> Result<(), E> {
-        let last = self.map.keyframe_ids().last();
-        let before = last.map(|k| (self.map.rigid_pose(k), self.scale(k)));
-        let mut graph = self.map.graph.clone();
-        correct(&mut graph)?;
-        self.map.graph = graph;
+        let last = self.map_keyframes().last();
+        let before = last.map(|k| (rigid_pose(graph, k), scale(graph, k)));
+        let mut corrected = graph.clone();
+        correct(&mut corrected)?;
+        *graph = corrected;
         if let (Some(k), Some((pose_before, scale_before))) = (last, before)
-            && let pose_after = self.map.rigid_pose(k)
-            && let factor = scale_before / self.scale(k)
+            && let pose_after = rigid_pose(graph, k)
+            && let factor = scale_before / scale(graph, k)
             && let State::Tracking {
                 last_pose,
                 velocity,
@@ -523,15 +560,6 @@ impl MonoExplorer {
         Ok(())
     }
 
-    fn scale(&self, k: KeyframeId) -> f64 {
-        self.map
-            .graph
-            .keyframe(k)
-            .expect("keyframes are never removed")
-            .camera_from_world()
-            .scale()
-    }
-
     /// Number of running feature filters.
     pub fn num_filters(&self) -> usize {
         self.filters.len()
@@ -545,6 +573,7 @@ impl MonoExplorer {
     /// Processes one frame's measurements `(track, z)` (pixels).
     pub fn process(
         &mut self,
+        graph: &mut SlamGraph<2>,
         frame: usize,
         measurements: &[(TrackId, Vector2<f64>)],
     ) -> Result<FrameOutcome, ExplorationError> {
@@ -583,7 +612,7 @@ impl MonoExplorer {
                     };
                     return Err(ExplorationError::FrameOrder { frame, last: first });
                 }
-                match self.bootstrap(first, &first_measurements, frame, &measurements) {
+                match self.bootstrap(graph, first, &first_measurements, frame, &measurements) {
                     Ok(outcome) => Ok(outcome),
                     Err(reason) => {
                         if tried + 1 >= self.config.max_bootstrap_frames {
@@ -625,7 +654,7 @@ impl MonoExplorer {
                         last: last_frame,
                     });
                 }
-                self.track(frame, &measurements, last_frame, last_pose, velocity)
+                self.track(graph, frame, &measurements, last_frame, last_pose, velocity)
             }
         }
     }
@@ -633,6 +662,7 @@ impl MonoExplorer {
     /// Two-view bootstrap between the first frame and `frame`; `Err(reason)` to keep waiting.
     fn bootstrap(
         &mut self,
+        graph: &mut SlamGraph<2>,
         first: usize,
         first_measurements: &[(TrackId, Vector2<f64>)],
         frame: usize,
@@ -746,29 +776,28 @@ impl MonoExplorer {
         // Keyframes 0 and 1, map points anchored in keyframe 0.
         let k0 = self
             .map
-            .add_keyframe(first, Se3::identity(), first_measurements);
-        let k1 = self.map.add_keyframe(frame, second, measurements);
+            .add_keyframe(graph, first, Se3::identity(), first_measurements);
+        let k1 = self.map.add_keyframe(graph, frame, second, measurements);
         self.keyframe_of_frame.insert(first, k0);
         self.keyframe_of_frame.insert(frame, k1);
         if self.double_window.is_some() {
             // The double window walks the covisibility edges; the points come below.
-            self.map
-                .graph
+            graph
                 .add_edge(k0, k1, Some(Sim3::from_se3(&second)))
                 .map_err(|e| e.to_string())?;
         }
         for ((i, _), p) in pts.iter().zip(points) {
-            let Some(point) = self.map.add_point(tracks[*i], k0, &p, z_a[*i]) else {
+            let Some(point) = self.map.add_point(graph, tracks[*i], k0, &p, z_a[*i]) else {
                 continue;
             };
-            self.add_observation(k1, point, z_b[*i]);
+            add_observation(graph, k1, point, z_b[*i]);
             self.active.insert(tracks[*i], point);
         }
         self.frame_poses.push((first, Se3::identity()));
         self.frame_poses.push((frame, second));
         let steps = (frame - first) as f64;
         let velocity = Se3::exp(&(second.log() / steps));
-        let started = self.start_features(k1, frame, measurements);
+        let started = self.start_features(graph, k1, frame, measurements);
         self.state = State::Tracking {
             last_frame: frame,
             last_pose: second,
@@ -785,15 +814,9 @@ impl MonoExplorer {
         })
     }
 
-    fn add_observation(&mut self, keyframe: KeyframeId, point: PointId, z: Vector2<f64>) {
-        self.map
-            .graph
-            .add_observation(keyframe, point, z)
-            .expect("the explorer's keyframes and points exist");
-    }
-
     fn track(
         &mut self,
+        graph: &mut SlamGraph<2>,
         frame: usize,
         measurements: &[(TrackId, Vector2<f64>)],
         last_frame: usize,
@@ -816,24 +839,24 @@ impl MonoExplorer {
                 tracked: tracked.len(),
             });
         }
-        let pose = self.motion_only(predicted, &tracked)?;
+        let pose = self.motion_only(graph, predicted, &tracked)?;
         let new_velocity = Se3::exp(&(pose.compose(&last_pose.inverse()).log() / steps));
         // 2. Keyframe decision by distance relative to the median scene depth.
         let mut depths: Vec<f64> = tracked
             .iter()
-            .filter_map(|(p, _)| self.map.graph.point_world(*p).ok())
+            .filter_map(|(p, _)| graph.point_world(*p).ok())
             .map(|y| pose.act(&y).z)
             .filter(|d| *d > 0.0)
             .collect();
         let median_depth = median(&mut depths).unwrap_or(1.0);
         let last_kf = KeyframeId::from_index(self.map.keyframes.len() - 1);
-        let is_keyframe = self.view_uncovered(&pose, last_kf, &tracked, median_depth)
+        let is_keyframe = self.view_uncovered(graph, &pose, last_kf, &tracked, median_depth)
             || tracked.len() < self.config.min_tracked_for_keyframe;
         let keyframe = is_keyframe.then(|| {
-            let k = self.map.add_keyframe(frame, pose, measurements);
+            let k = self.map.add_keyframe(graph, frame, pose, measurements);
             self.keyframe_of_frame.insert(frame, k);
             for (p, z) in &tracked {
-                self.add_observation(k, *p, *z);
+                add_observation(graph, k, *p, *z);
             }
             k
         });
@@ -843,7 +866,7 @@ impl MonoExplorer {
             .filter_map(|(t, z)| self.filter_of_track.get(t).map(|id| (*id, *z)))
             .collect();
         self.filters.update(frame, &pose, &filter_measurements);
-        let promoted = self.promote();
+        let promoted = self.promote(graph);
         // 4. Drop tracks not measured in this frame.
         let seen: HashSet<TrackId> = measurements.iter().map(|(t, _)| *t).collect();
         self.active.retain(|t, _| seen.contains(t));
@@ -857,10 +880,9 @@ impl MonoExplorer {
         let mut started = 0;
         let mut pose = pose;
         if let Some(k) = keyframe {
-            started = self.start_features(k, frame, measurements);
+            started = self.start_features(graph, k, frame, measurements);
             match &mut self.double_window {
                 Some(dwo) => {
-                    let graph = &mut self.map.graph;
                     let previous = KeyframeId::from_index(k.index().saturating_sub(1));
                     crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
                         .and_then(|_| graph.set_reference(k))
@@ -872,14 +894,14 @@ impl MonoExplorer {
                         self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
                     for a in anchors {
                         if let Some(&ka) = self.keyframe_of_frame.get(&a) {
-                            let t = self.map.rigid_pose(ka);
+                            let t = rigid_pose(graph, ka);
                             self.filters.set_anchor_pose(a, t);
                         }
                     }
                 }
-                None => self.window_ba(k)?,
+                None => self.window_ba(graph, k)?,
             }
-            pose = self.map.rigid_pose(k);
+            pose = rigid_pose(graph, k);
         }
         self.frame_poses.push((frame, pose));
         self.state = State::Tracking {
@@ -908,6 +930,7 @@ impl MonoExplorer {
     /// a mapped place gets none where its old keyframes look.
     fn view_uncovered(
         &self,
+        graph: &SlamGraph<2>,
         pose: &Se3,
         last: KeyframeId,
         tracked: &[(PointId, Vector2<f64>)],
@@ -915,7 +938,7 @@ impl MonoExplorer {
     ) -> bool {
         let depth = median_depth.max(1e-9);
         let distance = |k: KeyframeId| {
-            (centre(pose) - centre(&self.map.rigid_pose(k))).norm()
+            (centre(pose) - centre(&rigid_pose(graph, k))).norm()
                 / (self.config.keyframe_distance * depth)
         };
         let Some(rotation) = self.config.keyframe_rotation else {
@@ -923,7 +946,7 @@ impl MonoExplorer {
         };
         let mut near: HashSet<KeyframeId> = HashSet::from([last]);
         for (p, _) in tracked {
-            if let Some(point) = self.map.graph.point(*p) {
+            if let Some(point) = graph.point(*p) {
                 near.extend(point.observers().iter().copied());
             }
         }
@@ -932,16 +955,13 @@ impl MonoExplorer {
         // points leave the view, the tracks die) new points are needed although the place is
         // known.
         let wanted = |k: KeyframeId| {
-            self.map
-                .graph
-                .keyframe(k)
-                .map_or(0, |kf| kf.observations().len()) as f64
+            graph.keyframe(k).map_or(0, |kf| kf.observations().len()) as f64
                 * self.config.keyframe_min_tracked_fraction
         };
         near.into_iter().all(|k| {
             let turned = pose
                 .rotation()
-                .compose(&self.map.rigid_pose(k).rotation().inverse())
+                .compose(&rigid_pose(graph, k).rotation().inverse())
                 .log()
                 .norm();
             distance(k).max(turned / rotation) > 1.0 || (tracked.len() as f64) < wanted(k)
@@ -950,15 +970,14 @@ impl MonoExplorer {
 
     fn motion_only(
         &self,
+        graph: &SlamGraph<2>,
         predicted: Se3,
         tracked: &[(PointId, Vector2<f64>)],
     ) -> Result<Se3, ExplorationError> {
         let (points, measurements): (Vec<Vector3<f64>>, Vec<Vector2<f64>>) = tracked
             .iter()
             .map(|(p, z)| {
-                let y = self
-                    .map
-                    .graph
+                let y = graph
                     .point_world(*p)
                     .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
                 Ok((y, *z))
@@ -978,7 +997,7 @@ impl MonoExplorer {
     }
 
     /// Promotes converged filters to map points with their keyframe measurements.
-    fn promote(&mut self) -> usize {
+    fn promote(&mut self, graph: &mut SlamGraph<2>) -> usize {
         let converged = self.filters.take_converged();
         let n = converged.len();
         let track_of: HashMap<FeatureId, TrackId> =
@@ -997,7 +1016,7 @@ impl MonoExplorer {
             };
             let Some(point) = self
                 .map
-                .add_point(track, anchor, &f.point_world(), z_anchor)
+                .add_point(graph, track, anchor, &f.point_world(), z_anchor)
             else {
                 continue;
             };
@@ -1005,7 +1024,7 @@ impl MonoExplorer {
                 if let Some(&k) = self.keyframe_of_frame.get(frame)
                     && k != anchor
                 {
-                    self.add_observation(k, point, *z);
+                    add_observation(graph, k, point, *z);
                 }
             }
             self.active.insert(track, point);
@@ -1016,6 +1035,7 @@ impl MonoExplorer {
     /// Starts filters in keyframe `k` where the feature density is low (thesis §3.4.3).
     fn start_features(
         &mut self,
+        graph: &SlamGraph<2>,
         k: KeyframeId,
         frame: usize,
         measurements: &[(TrackId, Vector2<f64>)],
@@ -1049,8 +1069,7 @@ impl MonoExplorer {
         if count >= self.config.max_features || candidates.is_empty() {
             return 0;
         }
-        let anchor = self.map.rigid_pose(k);
-        let graph = &self.map.graph;
+        let anchor = rigid_pose(graph, k);
         let mut inverse_depths: Vec<f64> = graph
             .keyframe(k)
             .expect("a keyframe of the map")
@@ -1091,15 +1110,14 @@ impl MonoExplorer {
 
     /// The keyframes the BA of new keyframe `k` optimises, oldest first
     /// ([`ExplorationConfig::local_window`]).
-    fn local_keyframes(&self, k: KeyframeId) -> Vec<KeyframeId> {
+    fn local_keyframes(&self, graph: &SlamGraph<2>, k: KeyframeId) -> Vec<KeyframeId> {
         let window = self.config.window.max(3);
         let n = self.map.keyframes.len();
         match self.config.local_window {
-            LocalWindow::Sliding => (n.saturating_sub(window)..n)
+            LocalWindow::Sliding => (n.saturating_sub(window).max(self.map_start)..n)
                 .map(KeyframeId::from_index)
                 .collect(),
             LocalWindow::Covisible => {
-                let graph = &self.map.graph;
                 let mut shared: BTreeMap<KeyframeId, usize> = BTreeMap::new();
                 for p in graph.keyframe(k).expect("in the map").observations().keys() {
                     for &o in graph.point(*p).expect("in the map").observers() {
@@ -1139,9 +1157,12 @@ impl MonoExplorer {
     /// the window to the trajectory and fix the scale gauge). Points measured once in all
     /// are held fixed. The points are written back anchored in their (possibly moved) anchor
     /// keyframes.
-    fn window_ba(&mut self, k: KeyframeId) -> Result<(), ExplorationError> {
-        let graph = &self.map.graph;
-        let local = self.local_keyframes(k);
+    fn window_ba(
+        &mut self,
+        graph: &mut SlamGraph<2>,
+        k: KeyframeId,
+    ) -> Result<(), ExplorationError> {
+        let local = self.local_keyframes(graph, k);
         let mut count: BTreeMap<PointId, usize> = BTreeMap::new();
         for &w in &local {
             for &p in graph.keyframe(w).expect("in the map").observations().keys() {
@@ -1187,7 +1208,7 @@ impl MonoExplorer {
                 .chain(local.len()..window.len())
                 .collect()
         };
-        let poses: Vec<Se3> = window.iter().map(|&k| self.map.rigid_pose(k)).collect();
+        let poses: Vec<Se3> = window.iter().map(|&k| rigid_pose(graph, k)).collect();
         let index: BTreeMap<PointId, usize> =
             count.keys().enumerate().map(|(i, &p)| (p, i)).collect();
         let points: Vec<Vector3<f64>> = count
@@ -1232,8 +1253,7 @@ impl MonoExplorer {
             .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
         let (poses, points) = (ba.camera_from_world(), ba.points_world());
         for (&k, t) in local.iter().zip(&poses) {
-            self.map
-                .graph
+            graph
                 .set_pose(k, Sim3::from_se3(t))
                 .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
             self.filters
@@ -1260,7 +1280,6 @@ impl MonoExplorer {
             }
         }
         for (&p, y) in count.keys().zip(&points) {
-            let graph = &mut self.map.graph;
             let anchor = graph.point(p).expect("in the map").anchor();
             let x = graph.pose(anchor).expect("in the map").act(y);
             // A point the window pushed behind its anchor keeps its previous position.
@@ -1271,16 +1290,27 @@ impl MonoExplorer {
             }
         }
         for (kf, p) in outliers {
-            self.map
-                .graph
+            graph
                 .remove_observation(kf, p)
                 .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            if kf == k || self.map.graph.point(p).is_none() {
+            if kf == k || graph.point(p).is_none() {
                 self.active.retain(|_, q| *q != p);
             }
         }
         Ok(())
     }
+}
+
+/// Adds the measurement `z` of `point` in `keyframe` (both the explorer's).
+fn add_observation(
+    graph: &mut SlamGraph<2>,
+    keyframe: KeyframeId,
+    point: PointId,
+    z: Vector2<f64>,
+) {
+    graph
+        .add_observation(keyframe, point, z)
+        .expect("the explorer's keyframes and points exist");
 }
 
 /// The camera centre `−Rᵀt` of a `camera_from_world` pose.
@@ -1336,8 +1366,12 @@ mod tests {
         (truth, frames)
     }
 
-    fn explore(frames: &[Vec<(TrackId, Vector2<f64>)>], sigma: f64) -> MonoExplorer {
+    fn explore(
+        frames: &[Vec<(TrackId, Vector2<f64>)>],
+        sigma: f64,
+    ) -> (MonoExplorer, SlamGraph<2>) {
         let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        let mut graph = SlamGraph::new();
         let mut explorer = MonoExplorer::new(
             camera,
             ExplorationConfig {
@@ -1346,9 +1380,9 @@ mod tests {
             },
         );
         for (f, m) in frames.iter().enumerate() {
-            explorer.process(f, m).unwrap();
+            explorer.process(&mut graph, f, m).unwrap();
         }
-        explorer
+        (explorer, graph)
     }
 
     /// The live system's settings: covisible window, fixed older observers, outliers removed.
@@ -1393,15 +1427,16 @@ mod tests {
                 ..config
             };
             let mut explorer = MonoExplorer::new(camera, config);
+            let mut graph = SlamGraph::new();
             let mut point = None;
             for (f, m) in frames.iter().enumerate() {
-                explorer.process(f, m).unwrap();
+                explorer.process(&mut graph, f, m).unwrap();
                 if f == 59 {
                     point = explorer.active().get(&track).copied();
                 }
             }
             let point = point.expect("a map point by frame 59");
-            let graph = &explorer.map().graph;
+            let graph = &graph;
             let worst = graph.point(point).map_or(0.0, |pt| {
                 let y = graph.point_world(point).unwrap();
                 pt.observers()
@@ -1432,14 +1467,15 @@ mod tests {
         let (truth, frames) = sideways(5, 100, 0.5);
         let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
         let mut explorer = MonoExplorer::new(camera, map_reuse(0.5));
+        let mut graph = SlamGraph::new();
         assert!(!explorer.relocalise(0, Se3::identity()), "no map yet");
         for (f, m) in frames.iter().enumerate().take(60) {
-            explorer.process(f, m).unwrap();
+            explorer.process(&mut graph, f, m).unwrap();
         }
         // Frame 60 measures nothing (tracking is lost: the exploration stops tracking),
         // 61–69 are not given; from 70 on every track is new (ids + 10 000).
         assert!(matches!(
-            explorer.process(60, &[]),
+            explorer.process(&mut graph, 60, &[]),
             Err(ExplorationError::TrackingLost { frame: 60, .. })
         ));
         const NEW: TrackId = 10_000;
@@ -1447,9 +1483,7 @@ mod tests {
             .iter()
             .map(|m| m.iter().map(|&(t, z)| (t + NEW, z)).collect())
             .collect();
-        let point_of: HashMap<TrackId, PointId> = explorer
-            .map()
-            .graph
+        let point_of: HashMap<TrackId, PointId> = graph
             .points()
             .map(|(p, _)| (explorer.map().track(p), p))
             .collect();
@@ -1463,7 +1497,7 @@ mod tests {
             .collect();
         let points: Vec<Vector3<f64>> = seen
             .iter()
-            .map(|(_, p, _)| explorer.map().graph.point_world(*p).unwrap())
+            .map(|(_, p, _)| graph.point_world(*p).unwrap())
             .collect();
         let sigma = vec![0.5 / 500.0; seen.len()];
         let pnp = geom::pnp::PnpEstimator {
@@ -1483,11 +1517,11 @@ mod tests {
         assert!(explorer.relocalise(70, found.model));
         assert!(explorer.active().is_empty());
         for (t, p, _) in &seen {
-            assert!(explorer.associate(*t, *p));
+            assert!(explorer.associate(&graph, *t, *p));
         }
         for (i, m) in renamed.iter().enumerate() {
             let o = explorer
-                .process(70 + i, m)
+                .process(&mut graph, 70 + i, m)
                 .unwrap_or_else(|e| panic!("frame {}: {e}", 70 + i));
             assert!(o.tracked >= 20, "frame {}: {} tracked", 70 + i, o.tracked);
         }
@@ -1507,14 +1541,15 @@ mod tests {
                 .map(|(f, t)| (centre(t) - in_map(&centre(&truth[*f]))).norm() / scale)
                 .fold(0.0, f64::max)
         };
-        let poses = explorer.frame_poses();
+        let poses = explorer.frame_poses(&graph);
         assert_eq!(poses.iter().filter(|(f, _)| *f >= 70).count(), 30);
         let relocalised = worst(&poses);
         let mut plain = MonoExplorer::new(camera, map_reuse(0.5));
+        let mut plain_graph = SlamGraph::new();
         for (f, m) in frames.iter().enumerate() {
-            plain.process(f, m).unwrap();
+            plain.process(&mut plain_graph, f, m).unwrap();
         }
-        let never_lost = worst(&plain.frame_poses());
+        let never_lost = worst(&plain.frame_poses(&plain_graph));
         println!(
             "worst centre error after the gap: relocalised {relocalised:.4} m, never lost \
              {never_lost:.4} m (4 m path)"
@@ -1538,10 +1573,11 @@ mod tests {
         let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
         let added_back = |config: ExplorationConfig| {
             let mut explorer = MonoExplorer::new(camera, config);
+            let mut graph = SlamGraph::new();
             let mut back = 0;
             for (f, m) in frames.iter().enumerate() {
                 let o = explorer
-                    .process(f, m)
+                    .process(&mut graph, f, m)
                     .unwrap_or_else(|e| panic!("frame {f}: {e}"));
                 back += usize::from(f >= 85 && o.keyframe.is_some());
             }
@@ -1567,11 +1603,11 @@ mod tests {
     fn exploration_goes_on_in_a_corrected_map() {
         let (_, frames) = sideways(2, 120, 0.5);
         let a = 2.0;
-        let plain = explore(&frames, 0.5);
-        let mut explorer = explore(&frames[..60], 0.5);
+        let (plain, plain_graph) = explore(&frames, 0.5);
+        let (mut explorer, mut graph) = explore(&frames[..60], 0.5);
         let before = explorer.predicted_pose(60).unwrap();
         explorer
-            .correct_map(|g| {
+            .correct_map(&mut graph, |g| {
                 let ids: Vec<KeyframeId> = g.keyframes().map(|(k, _)| k).collect();
                 for k in ids {
                     let s = g.pose(k)?.compose(
@@ -1587,9 +1623,12 @@ mod tests {
         assert!((centre(&after) - a * centre(&before)).norm() < 1e-9);
         assert!((after.rotation().log() - before.rotation().log()).norm() < 1e-12);
         for (f, m) in frames.iter().enumerate().skip(60) {
-            explorer.process(f, m).unwrap();
+            explorer.process(&mut graph, f, m).unwrap();
         }
-        let (p, q) = (plain.frame_poses(), explorer.frame_poses());
+        let (p, q) = (
+            plain.frame_poses(&plain_graph),
+            explorer.frame_poses(&graph),
+        );
         assert_eq!(p.len(), q.len());
         let path = (centre(&p[p.len() - 1].1) - centre(&p[0].1)).norm();
         for ((f, x), (g, y)) in p.iter().zip(&q).filter(|((f, _), _)| *f >= 60) {
@@ -1605,14 +1644,12 @@ mod tests {
     #[test]
     fn sideways_exploration_recovers_the_trajectory_up_to_scale() {
         let (truth, frames) = sideways(1, 120, 0.5);
-        let explorer = explore(&frames, 0.5);
-        let poses = explorer.frame_poses();
+        let (explorer, graph) = explore(&frames, 0.5);
+        let poses = explorer.frame_poses(&graph);
         assert!(poses.len() > 100, "{} frames tracked", poses.len());
         assert!(explorer.map().keyframes.len() >= 10);
         // Map points beyond the bootstrap's: promoted by the filters.
-        let promoted = explorer
-            .map()
-            .graph
+        let promoted = graph
             .points()
             .filter(|(_, p)| p.anchor() != KeyframeId(0))
             .count();
@@ -1643,17 +1680,15 @@ mod tests {
         let length = (c_true.last().unwrap()).norm();
         assert!(rmse < 0.01 * length, "rmse {rmse} over {length} m");
         // Deterministic.
-        let again = explore(&frames, 0.5);
-        assert_eq!(again.frame_poses(), poses);
-        let points = |e: &MonoExplorer| -> Vec<_> {
-            e.map()
-                .graph
-                .points()
+        let (again, again_graph) = explore(&frames, 0.5);
+        assert_eq!(again.frame_poses(&again_graph), poses);
+        let points = |g: &SlamGraph<2>| -> Vec<_> {
+            g.points()
                 .map(|(p, pt)| (p, pt.anchor(), *pt.inverse_depth()))
                 .collect()
         };
-        assert_eq!(points(&again), points(&explorer));
-        explorer.map().graph.check_invariants().unwrap();
+        assert_eq!(points(&again_graph), points(&graph));
+        graph.check_invariants().unwrap();
     }
 
     #[test]
@@ -1661,15 +1696,16 @@ mod tests {
         let (_, frames) = sideways(2, 30, 0.5);
         let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
         let mut explorer = MonoExplorer::new(camera, ExplorationConfig::default());
+        let mut graph = SlamGraph::new();
         for (f, m) in frames.iter().enumerate() {
-            explorer.process(f, m).unwrap();
+            explorer.process(&mut graph, f, m).unwrap();
         }
         assert!(matches!(
-            explorer.process(3, &frames[3]),
+            explorer.process(&mut graph, 3, &frames[3]),
             Err(ExplorationError::FrameOrder { .. })
         ));
         assert!(matches!(
-            explorer.process(100, &[]),
+            explorer.process(&mut graph, 100, &[]),
             Err(ExplorationError::TrackingLost { .. })
         ));
         // No parallax at all: the bootstrap gives up with a reason.
@@ -1681,8 +1717,9 @@ mod tests {
             },
         );
         let mut result = Ok(());
+        let mut graph = SlamGraph::new();
         for f in 0..10 {
-            if let Err(e) = still.process(f, &frames[0]) {
+            if let Err(e) = still.process(&mut graph, f, &frames[0]) {
                 result = Err(e);
                 break;
             }

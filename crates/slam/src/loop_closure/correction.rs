@@ -167,10 +167,12 @@ pub enum CorrectionError {
     },
 }
 
-/// The keyframes of `graph` in id order (the chain of thesis §5.3.2) with their rigid poses.
-fn chain<const N: usize>(graph: &SlamGraph<N>) -> (Vec<KeyframeId>, Vec<Se3>) {
+/// The keyframes of `graph` in id order (the chain of thesis §5.3.2) with their rigid poses;
+/// only those of map `map` if given.
+fn chain<const N: usize>(graph: &SlamGraph<N>, map: Option<usize>) -> (Vec<KeyframeId>, Vec<Se3>) {
     graph
         .keyframes()
+        .filter(|(_, kf)| map.is_none_or(|m| kf.map() == m))
         .map(|(k, kf)| (k, rigid_from_similarity(kf.camera_from_world())))
         .unzip()
 }
@@ -187,7 +189,32 @@ pub fn correct_graph<const N: usize>(
     jacobian: PoseGraphJacobian,
     options: &SolverOptions,
 ) -> Result<Correction, CorrectionError> {
-    let (ids, poses) = chain(graph);
+    correct_chain(graph, None, loops, group, jacobian, options)
+}
+
+/// [`correct_graph`] for the keyframes of map `map` alone, in a graph that holds several
+/// ([`SlamGraph::start_map`]): the chain is that map's keyframes in id order, `loops` give
+/// positions in it, and the other maps' keyframes stay as they are.
+pub fn correct_map<const N: usize>(
+    graph: &mut SlamGraph<N>,
+    map: usize,
+    loops: &[LoopEdge],
+    group: CorrectionGroup,
+    jacobian: PoseGraphJacobian,
+    options: &SolverOptions,
+) -> Result<Correction, CorrectionError> {
+    correct_chain(graph, Some(map), loops, group, jacobian, options)
+}
+
+fn correct_chain<const N: usize>(
+    graph: &mut SlamGraph<N>,
+    map: Option<usize>,
+    loops: &[LoopEdge],
+    group: CorrectionGroup,
+    jacobian: PoseGraphJacobian,
+    options: &SolverOptions,
+) -> Result<Correction, CorrectionError> {
+    let (ids, poses) = chain(graph, map);
     if let Some(position) = loops
         .iter()
         .flat_map(|l| [l.old, l.current])
@@ -227,7 +254,7 @@ pub fn refine_graph(
     full: bool,
     options: &SolverOptions,
 ) -> Result<Vec<Se3>, CorrectionError> {
-    let (ids, poses) = chain(graph);
+    let (ids, poses) = chain(graph, None);
     let position: std::collections::BTreeMap<KeyframeId, usize> =
         ids.iter().enumerate().map(|(i, &k)| (k, i)).collect();
     let point_ids: Vec<PointId> = graph.points().map(|(p, _)| p).collect();

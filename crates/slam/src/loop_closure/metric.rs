@@ -79,6 +79,9 @@ pub struct MetricLoopProblem<const N: usize> {
     reference: KeyframeId,
     matches: Vec<(PointId, SVector<f64, N>)>,
     observers: Vec<Vec<KeyframeId>>,
+    /// The observers' poses when the problem was made: the edges measure the reference
+    /// relative to them as they were then (the graph may move before the fit is written).
+    poses: BTreeMap<KeyframeId, Sim3>,
     pose: PoseProblem<N>,
 }
 
@@ -86,6 +89,8 @@ pub struct MetricLoopProblem<const N: usize> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct MetricLoopFit<const N: usize> {
     reference: KeyframeId,
+    /// The accepted keyframes' poses when the problem was made.
+    poses: BTreeMap<KeyframeId, Sim3>,
     /// `T_loop`, the pose of the reference that explains the matches.
     pub camera_from_world: Sim3,
     /// The matches it explains.
@@ -108,7 +113,7 @@ impl<const N: usize> MetricLoopProblem<N> {
         // T_loop is estimated in the reference's metric: the points are expressed in its frame.
         let t_ref = graph.pose(reference)?;
         let near: BTreeSet<KeyframeId> = graph.n1(reference).into_iter().collect();
-        let observers = matches
+        let observers: Vec<Vec<KeyframeId>> = matches
             .iter()
             .map(|(p, _)| {
                 Ok(graph
@@ -121,10 +126,16 @@ impl<const N: usize> MetricLoopProblem<N> {
                     .collect())
             })
             .collect::<Result<_, GraphError>>()?;
+        let poses = observers
+            .iter()
+            .flatten()
+            .filter_map(|&o| Some((o, graph.pose(o).ok()?)))
+            .collect();
         Ok(Some(MetricLoopProblem {
             reference,
             matches: matches.to_vec(),
             observers,
+            poses,
             pose: PoseProblem::from_graph(graph, reference, matches, &t_ref)?,
         }))
     }
@@ -157,13 +168,17 @@ impl<const N: usize> MetricLoopProblem<N> {
             }
         }
         let half = params.theta.div_ceil(2);
-        let accepted = counts
+        let accepted: Vec<(KeyframeId, usize)> = counts
             .iter()
             .filter(|(_, c)| c[0] >= params.theta && c[1..].iter().all(|&n| n >= half))
             .map(|(&k, c)| (k, c[0]))
             .collect();
         Ok(MetricLoopFit {
             reference: self.reference,
+            poses: accepted
+                .iter()
+                .filter_map(|(k, _)| Some((*k, *self.poses.get(k)?)))
+                .collect(),
             camera_from_world: fit.camera_from_world,
             inliers,
             accepted,
@@ -176,8 +191,10 @@ impl<const N: usize> MetricLoopFit<N> {
     /// data association, consistent with one pose — also when no edge passes the tests, so that
     /// tracking continues on the old points instead of duplicating them, and local
     /// registration of the following keyframes joins the old keyframes once they share `Θ`
-    /// points), and each accepted keyframe gets its edge. Points and keyframes removed since
-    /// the problem was made are skipped.
+    /// points), and each accepted keyframe gets its edge, `T_loop·T_i⁻¹` with `T_i` as it was
+    /// when the problem was made (`T_loop` was fitted against the graph then: another thread may
+    /// have moved both since). Points and keyframes removed since the problem was made are
+    /// skipped.
     pub fn apply(&self, graph: &mut SlamGraph<N>) -> Result<Vec<MetricLoopClosure>, GraphError> {
         graph.pose(self.reference)?;
         for (p, z) in &self.inliers {
@@ -188,7 +205,9 @@ impl<const N: usize> MetricLoopFit<N> {
         }
         let mut out = Vec::new();
         for &(k, shared) in &self.accepted {
-            let Ok(t_k) = graph.pose(k) else { continue };
+            let (Some(t_k), Ok(_)) = (self.poses.get(&k), graph.pose(k)) else {
+                continue;
+            };
             let t_ref_k = self.camera_from_world.compose(&t_k.inverse());
             graph.add_edge(k, self.reference, Some(t_ref_k))?;
             out.push(MetricLoopClosure {

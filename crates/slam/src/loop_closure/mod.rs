@@ -23,7 +23,10 @@ pub use constraint::{
 };
 pub use correction::{Correction, CorrectionError, CorrectionGroup, LoopEdge};
 pub use drift::{DriftLimits, LoopDrift};
-pub use metric::{MetricLoopClosure, MetricLoopParams, close_metric_loops, loop_candidates};
+pub use metric::{
+    MetricLoopClosure, MetricLoopFit, MetricLoopParams, MetricLoopProblem, close_metric_loops,
+    loop_candidates,
+};
 
 use crate::map::GraphError;
 use crate::tracking::TrackingError;

@@ -41,6 +41,7 @@ use nalgebra::{SVector, Vector3};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 use super::ids::{KeyframeId, PointId};
+use super::maps::{self, MapJoin};
 use crate::factors::{MIN_INVERSE_DEPTH, inverse_depth_to_point, point_to_inverse_depth};
 
 /// A count of the mutations of a graph (see the module docs on versions).
@@ -144,6 +145,9 @@ pub enum GraphError {
     /// An invariant does not hold (see [`SlamGraph::check_invariants`]).
     #[error("graph invariant violated: {0}")]
     Invariant(String),
+    /// Two keyframes of one map where two maps were expected ([`SlamGraph::join_maps`]).
+    #[error("keyframes {0} and {1} are in one map: nothing to join")]
+    SameMap(KeyframeId, KeyframeId),
 }
 
 /// The result of a weighted breadth-first search: the visiting order and the spanning tree.
@@ -171,6 +175,8 @@ pub struct SlamGraph<const N: usize> {
     maps_started: usize,
     /// The merges so far, oldest first.
     merges: Vec<MapMerge>,
+    /// The joins so far, oldest first ([`SlamGraph::join_maps`]).
+    joins: Vec<MapJoin>,
 }
 
 /// The map a graph starts with (the world: the frame of the first keyframe).
@@ -201,6 +207,7 @@ impl<const N: usize> SlamGraph<N> {
             current_map: FIRST_MAP,
             maps_started: FIRST_MAP + 1,
             merges: Vec::new(),
+            joins: Vec::new(),
         }
     }
 
@@ -387,6 +394,54 @@ impl<const N: usize> SlamGraph<N> {
             }
         }
         moved.map(|m| (m, map))
+    }
+
+    /// Records that keyframe `current` sees the place of keyframe `old` of another map, with
+    /// `x_current = S·x_old` for camera-frame points, verified by `inliers` matches: the two
+    /// maps are joined, and stay apart in the graph ([`super::maps`]; the monocular system's
+    /// maps have scales of their own). The outputs put the joined maps into one world
+    /// ([`SlamGraph::written_maps`]).
+    pub fn join_maps(
+        &mut self,
+        current: KeyframeId,
+        old: KeyframeId,
+        current_from_old: Sim3,
+        inliers: usize,
+    ) -> Result<(), GraphError> {
+        if self.map_of(current)? == self.map_of(old)? {
+            return Err(GraphError::SameMap(current, old));
+        }
+        self.bump();
+        self.joins.push(MapJoin {
+            current,
+            old,
+            current_from_old,
+            inliers,
+        });
+        Ok(())
+    }
+
+    /// The joins so far, oldest first ([`SlamGraph::join_maps`]).
+    pub fn joins(&self) -> &[MapJoin] {
+        &self.joins
+    }
+
+    /// `(map, keyframes)` of every map with keyframes, in map order.
+    pub fn keyframes_per_map(&self) -> Vec<(usize, usize)> {
+        let mut count = BTreeMap::<usize, usize>::new();
+        for (_, k) in self.keyframes() {
+            *count.entry(k.map).or_default() += 1;
+        }
+        count.into_iter().collect()
+    }
+
+    /// The maps a run writes ([`maps::written_maps`]): the group of maps joined together with
+    /// the most keyframes, in the world of its map with the most keyframes. Returns that map
+    /// and every map of the group with `x_map = W·x_world` (the links from each pair's best
+    /// join, with the keyframes' poses as they are now: [`maps::map_links`]).
+    pub fn written_maps(&self) -> (usize, BTreeMap<usize, Sim3>) {
+        let links = maps::map_links(&self.joins, |k| self.map_of(k).ok(), |k| self.pose(k).ok());
+        maps::written_maps(&self.keyframes_per_map(), &links, FIRST_MAP)
     }
 
     /// The reference keyframe `V_ref`.

@@ -4,14 +4,18 @@
 //! - [`graph`]: [`SlamGraph`], keyframes with absolute Sim(3) poses, anchored inverse-depth
 //!   points, covisibility edges, weighted breadth-first search, invariants, versions.
 //! - [`ids`]: the typed ids [`KeyframeId`] and [`PointId`].
+//! - [`maps`]: the maps of one graph — started after a loss, merged or joined — and which of
+//!   them a run writes.
 //! - [`shared`]: [`SharedGraph`], the graph behind a lock held only for short sections.
 
 pub mod graph;
 pub mod ids;
+pub mod maps;
 pub mod shared;
 
 pub use graph::{
     BfsTree, Edge, FIRST_MAP, GraphError, Keyframe, MapMerge, MapPoint, SlamGraph, Version,
 };
 pub use ids::{IdInt, KeyframeId, PointId};
+pub use maps::MapJoin;
 pub use shared::SharedGraph;

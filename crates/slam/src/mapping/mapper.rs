@@ -213,6 +213,33 @@ pub struct AppearanceMatch<const N: usize> {
     pub correspondences: Vec<(PointId, SVector<f64, N>, Option<PointId>)>,
 }
 
+/// An appearance loop copied out of the graph ([`Mapper::plan_appearance_loop`]): per
+/// correspondence the old point in the old keyframe's frame (`source`) and where the new
+/// keyframe has it (`target`), and the old keyframe's pose.
+#[derive(Clone, Debug)]
+pub struct AppearancePlan<const N: usize> {
+    keyframe: KeyframeId,
+    old: KeyframeId,
+    old_pose: Sim3,
+    target: Vec<Vector3<f64>>,
+    source: Vec<Vector3<f64>>,
+    matches: Vec<(PointId, SVector<f64, N>)>,
+}
+
+/// An appearance loop fitted ([`Mapper::fit_appearance_loop`]): its measurement and the
+/// matches one pose explains.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AppearanceFit<const N: usize> {
+    /// The new keyframe.
+    pub keyframe: KeyframeId,
+    /// The old keyframe.
+    pub old: KeyframeId,
+    /// `T_new,old`: the loop's measurement.
+    pub query_from_matched: Sim3,
+    /// The matches kept: old points and their measurements in the new keyframe.
+    pub matches: Vec<(PointId, SVector<f64, N>)>,
+}
+
 /// The stages of the keyframe pipeline for a camera `C` with `N`-dimensional measurements;
 /// holds what the stages remember between keyframes (the last keyframes for the motion
 /// model, the monocular measurements waiting for parallax).
@@ -402,12 +429,33 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
     /// the edge and the matched observations — unless the loop needs more correction than the
     /// drift over the path between the two places explains
     /// ([`MappingConfig::appearance_max_drift`]).
+    ///
+    /// In one go: [`plan_appearance_loop`](Self::plan_appearance_loop) (reads the graph: a
+    /// thread holds its read lock), [`fit_appearance_loop`](Self::fit_appearance_loop) (no
+    /// graph: no lock), [`apply_appearance_loop`](Self::apply_appearance_loop) (writes: a
+    /// short write lock).
     pub fn close_appearance_loop(
         &self,
         graph: &mut SlamGraph<N>,
         keyframe: KeyframeId,
         place: &AppearanceMatch<N>,
     ) -> Result<AppearanceClosure, MappingError> {
+        let plan = self.plan_appearance_loop(graph, keyframe, place)?;
+        match self.fit_appearance_loop(plan) {
+            Some(fit) => self.apply_appearance_loop(graph, &fit),
+            None => Ok(AppearanceClosure::TooFewMatches),
+        }
+    }
+
+    /// The part of [`close_appearance_loop`](Self::close_appearance_loop) that reads the graph:
+    /// each correspondence's point in the old keyframe's frame and where the new keyframe has
+    /// it, and the old keyframe's pose.
+    pub fn plan_appearance_loop(
+        &self,
+        graph: &SlamGraph<N>,
+        keyframe: KeyframeId,
+        place: &AppearanceMatch<N>,
+    ) -> Result<AppearancePlan<N>, MappingError> {
         if graph.keyframe(place.old).is_none() {
             return Err(GraphError::UnknownKeyframe(place.old).into());
         }
@@ -425,6 +473,28 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
                 matches.push((p_old, z));
             }
         }
+        Ok(AppearancePlan {
+            keyframe,
+            old: place.old,
+            old_pose: graph.pose(place.old)?,
+            target,
+            source,
+            matches,
+        })
+    }
+
+    /// The part of [`close_appearance_loop`](Self::close_appearance_loop) that computes (no
+    /// graph): the alignment, the robust fit that keeps the matches one pose explains, and
+    /// the loop's measurement `query_from_matched`; `None` with too few matches.
+    pub fn fit_appearance_loop(&self, plan: AppearancePlan<N>) -> Option<AppearanceFit<N>> {
+        let AppearancePlan {
+            keyframe,
+            old,
+            old_pose: t_old,
+            target,
+            source,
+            matches,
+        } = plan;
         let align = |target: &[Vector3<f64>], source: &[Vector3<f64>]| {
             if C::MEASURES_DEPTH {
                 align_se3(target, source).ok().map(|t| Sim3::from_se3(&t))
@@ -433,17 +503,14 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             }
         };
         if matches.len() < self.config.min_appearance_matches {
-            return Ok(AppearanceClosure::TooFewMatches);
+            return None;
         }
-        let Some(first) = align(&target, &source) else {
-            return Ok(AppearanceClosure::TooFewMatches);
-        };
+        let first = align(&target, &source)?;
         // The matches must be explained by one pose of the new keyframe in the old place, as
         // those of a metric loop (thesis §6.4.1): a robust motion-only fit from the pose the
         // alignment implies, and the matches above the χ² gate dropped. The guided matching
         // finds them by patch correlation alone; one wrong match in the alignment (no robust
         // cost there) bends the loop's edge, and it would also become an observation.
-        let t_old = graph.pose(place.old)?;
         let initial = Sim3::from_se3(&rigid_from_similarity(&first)).compose(&t_old);
         let fit = tracking::PoseProblem::new(
             t_old,
@@ -451,10 +518,8 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             matches.iter().map(|m| m.1).collect(),
             &initial,
         )
-        .solve(&self.camera, &MotionOnlyOptions::robust(self.config.sigma));
-        let Ok(fit) = fit else {
-            return Ok(AppearanceClosure::TooFewMatches);
-        };
+        .solve(&self.camera, &MotionOnlyOptions::robust(self.config.sigma))
+        .ok()?;
         let keep: Vec<bool> = fit
             .chi2
             .iter()
@@ -475,7 +540,7 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             .map(|(m, _)| m)
             .collect();
         if matches.len() < self.config.min_appearance_matches {
-            return Ok(AppearanceClosure::TooFewMatches);
+            return None;
         }
         // The loop's measurement: with depth, the motion-only fit on the kept matches (pixel
         // residuals weighted by the measurement noise, as metric loop closure measures its
@@ -490,19 +555,43 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
                 matches.iter().map(|m| m.1).collect(),
                 &fit.camera_from_world,
             )
-            .solve(&self.camera, &MotionOnlyOptions::robust(self.config.sigma));
-            let Ok(refit) = refit else {
-                return Ok(AppearanceClosure::TooFewMatches);
-            };
+            .solve(&self.camera, &MotionOnlyOptions::robust(self.config.sigma))
+            .ok()?;
             refit.camera_from_world.compose(&t_old.inverse())
         } else {
-            let Some(q) = align(&target, &source) else {
-                return Ok(AppearanceClosure::TooFewMatches);
-            };
-            q
+            align(&target, &source)?
         };
+        Some(AppearanceFit {
+            keyframe,
+            old,
+            query_from_matched,
+            matches,
+        })
+    }
+
+    /// The part of [`close_appearance_loop`](Self::close_appearance_loop) that writes: with
+    /// the poses as they are now (the loop's measurement is relative, so the graph may have
+    /// moved since the plan), two maps are merged, or the drift test decides, and the loop's
+    /// edge and observations go in (those of points removed meanwhile are skipped).
+    pub fn apply_appearance_loop(
+        &self,
+        graph: &mut SlamGraph<N>,
+        fit: &AppearanceFit<N>,
+    ) -> Result<AppearanceClosure, MappingError> {
+        let AppearanceFit {
+            keyframe,
+            old,
+            query_from_matched,
+            ref matches,
+        } = *fit;
+        let t_old = graph.pose(old)?;
         let implied = query_from_matched.compose(&t_old);
-        let (map_new, map_old) = (graph.map_of(keyframe)?, graph.map_of(place.old)?);
+        let (map_new, map_old) = (graph.map_of(keyframe)?, graph.map_of(old)?);
+        let matches: Vec<(PointId, SVector<f64, N>)> = matches
+            .iter()
+            .filter(|(p, _)| graph.point(*p).is_some())
+            .copied()
+            .collect();
         if map_new != map_old {
             let centre = |t: &Sim3| t.inverse().act(&Vector3::zeros());
             // The younger map moves onto the older (the first map, the world, never moves): the
@@ -510,11 +599,11 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             // again in the first map that sees a map started after a loss), to where the loop
             // puts that one.
             let (moving, target, into) = if map_new > map_old {
-                (keyframe, implied, place.old)
+                (keyframe, implied, old)
             } else {
                 let t_query = graph.pose(keyframe)?;
                 (
-                    place.old,
+                    old,
                     query_from_matched.inverse().compose(&t_query),
                     keyframe,
                 )
@@ -524,33 +613,24 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             loop_closure::close_appearance_loop(
                 graph,
                 keyframe,
-                place.old,
+                old,
                 query_from_matched,
                 &matches,
             )?;
             return Ok(AppearanceClosure::Merged {
-                old: place.old,
+                old,
                 keyframes,
                 displacement,
             });
         }
-        let drift = LoopDrift::of(graph, place.old, keyframe, &implied);
+        let drift = LoopDrift::of(graph, old, keyframe, &implied);
         if let Some(drift) = drift
             && !drift.within(&self.config.appearance_max_drift)
         {
             return Ok(AppearanceClosure::TooMuchDrift(drift));
         }
-        loop_closure::close_appearance_loop(
-            graph,
-            keyframe,
-            place.old,
-            query_from_matched,
-            &matches,
-        )?;
-        Ok(AppearanceClosure::Closed {
-            old: place.old,
-            drift,
-        })
+        loop_closure::close_appearance_loop(graph, keyframe, old, query_from_matched, &matches)?;
+        Ok(AppearanceClosure::Closed { old, drift })
     }
 
     /// The candidates of metric loop closure (thesis §6.4.1): the points of `N2 \ N1` of
@@ -580,19 +660,23 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         keyframe: KeyframeId,
         found: &[(PointId, SVector<f64, N>)],
     ) -> Result<Vec<MetricLoopClosure>, MappingError> {
-        let params = MetricLoopParams {
-            theta: self.config.theta,
-            max_chi2: self.config.loop_max_chi2,
-            sigma: self.config.sigma,
-            image_size: self.config.image_size,
-        };
         Ok(loop_closure::close_metric_loops(
             graph,
             keyframe,
             found,
             &self.camera,
-            &params,
+            &self.metric_loop_params(),
         )?)
+    }
+
+    /// The parameters of metric loop closure.
+    pub fn metric_loop_params(&self) -> MetricLoopParams {
+        MetricLoopParams {
+            theta: self.config.theta,
+            max_chi2: self.config.loop_max_chi2,
+            sigma: self.config.sigma,
+            image_size: self.config.image_size,
+        }
     }
 
     /// New points for the measurements of `keyframe` that are not associated with a map

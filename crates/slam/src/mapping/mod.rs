@@ -35,8 +35,8 @@ mod pipeline;
 pub mod registration;
 
 pub use mapper::{
-    AppearanceClosure, AppearanceMatch, Mapper, MappingConfig, MappingError, PreparedFrame,
-    TrackedFrame,
+    AppearanceClosure, AppearanceFit, AppearanceMatch, AppearancePlan, Mapper, MappingConfig,
+    MappingError, PreparedFrame, TrackedFrame,
 };
 pub use pipeline::{FrontEnd, KeyframePipeline, KeyframeReport};
 pub use registration::register_locally;

@@ -3,8 +3,8 @@
 use super::mapper::{AppearanceMatch, Mapper, MappingError};
 use crate::dwo::{DoubleWindowOptimiser, DwoStats};
 use crate::factors::InverseDepthCamera;
-use crate::loop_closure::MetricLoopClosure;
-use crate::map::{KeyframeId, PointId, SlamGraph};
+use crate::loop_closure::{MetricLoopClosure, MetricLoopProblem};
+use crate::map::{KeyframeId, PointId, SharedGraph, SlamGraph};
 use crate::tracking::{TrackId, tracking_candidates};
 use lie::Sim3;
 use nalgebra::SVector;
@@ -49,14 +49,29 @@ pub trait FrontEnd<const N: usize> {
         keyframe: KeyframeId,
     ) -> Option<AppearanceMatch<N>>;
 
-    /// Guided search (thesis §6.4.1): the measurements in `keyframe` of the `predictions`
-    /// (points and their predicted measurements), in the order they are to be used.
-    fn guided_search(
+    /// What the guided search needs of the graph, copied out of it
+    /// ([`plan_guided_search`](Self::plan_guided_search)).
+    type GuidedSearch;
+
+    /// Guided search (thesis §6.4.1), the part that reads the graph (under its read lock in
+    /// the live system): what searching the `predictions` (points and their predicted
+    /// measurements) in `keyframe` needs.
+    fn plan_guided_search(
         &mut self,
         graph: &SlamGraph<N>,
         keyframe: KeyframeId,
         predictions: &[(PointId, SVector<f64, N>)],
-    ) -> Vec<(PointId, SVector<f64, N>)>;
+    ) -> Self::GuidedSearch;
+
+    /// Guided search, the part that needs no graph (no lock held): the measurements of the
+    /// planned points in the keyframe, in the order they are to be used.
+    fn guided_search(&mut self, plan: Self::GuidedSearch) -> Vec<(PointId, SVector<f64, N>)>;
+
+    /// Whether the keyframe is the first of a new map (`SlamGraph::start_map`), started under
+    /// the write lock that inserts it, so that no other thread sees the new map without it.
+    fn new_map(&self) -> bool {
+        false
+    }
 
     /// Every measurement of `keyframe` with its track and whether it is now associated with a
     /// point `keyframe` observes (the others may become new points).
@@ -116,7 +131,11 @@ impl<C: InverseDepthCamera<N>, const N: usize> KeyframePipeline<C, N> {
         graph: &mut SlamGraph<N>,
         front_end: &mut impl FrontEnd<N>,
     ) -> Result<KeyframeReport, MappingError> {
-        let mut report = self.mapper.map_keyframe(graph, front_end)?;
+        // The stages take the graph's locks as a thread does; here nobody else holds it.
+        let shared = SharedGraph::new(std::mem::take(graph));
+        let report = self.mapper.map_keyframe(&shared, front_end);
+        *graph = shared.into_inner();
+        let mut report = report?;
         // A window needs two keyframes: alone, the first one's points have nothing to be
         // adjusted against.
         if graph.num_keyframes() >= 2 {
@@ -130,9 +149,18 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
     /// Every stage of the keyframe pipeline but the optimisation, in order: track, insert,
     /// appearance loop, metric loop, new points ([`KeyframePipeline::process_keyframe`] adds
     /// the optimisation; the live system's optimiser runs in its own thread).
+    ///
+    /// Each stage holds the lock it needs of the shared `graph` for as short as it can (thesis
+    /// §6.5.2: the other threads — the optimiser, the loop closer — are never held up by a
+    /// search or a solve): the motion-only BA of tracking is prepared under the read lock and
+    /// solved with none, the keyframe inserted under a short write lock (rebased if its
+    /// reference moved meanwhile); metric loop closure's guided search is planned under the
+    /// read lock and run with none, its pose fit set up under the read lock, solved with none
+    /// and written (with the poses it was planned on: its edges are relative) under a short
+    /// write lock, with the new points.
     pub fn map_keyframe(
         &mut self,
-        graph: &mut SlamGraph<N>,
+        graph: &SharedGraph<N>,
         front_end: &mut impl FrontEnd<N>,
     ) -> Result<KeyframeReport, MappingError> {
         let start = Instant::now();
@@ -142,39 +170,31 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             times.push((name, lap.elapsed()));
             lap = Instant::now();
         };
-        let candidates = graph
-            .reference()
-            .map(|r| tracking_candidates(graph, r))
-            .unwrap_or_default();
-        let matches = front_end.match_candidates(graph, &candidates);
-        let given = front_end.given_pose(graph, &matches);
-        let tracked = matches.len();
-        let mut frame = self.track(graph, matches, given)?;
-        // A given pose tracked against a keyframe that moved since (another thread): rebased
-        // onto it (as `insert_keyframe` rebases a frame tracked here). The keyframe's edges are
-        // made as for any given pose.
-        if given.is_some()
-            && let Some((reference, then, version)) = front_end.given_pose_tracked_against()
-        {
-            frame.camera_from_world =
-                super::mapper::rebased(graph, frame.camera_from_world, reference, &then, version);
-        }
+        let (keyframe, tracked) = self.track_and_insert(graph, front_end)?;
         stage("keyframe: track", &mut stage_times);
-        let (keyframe, _) = self.insert_keyframe(graph, frame)?;
         stage("keyframe: insert and register", &mut stage_times);
-        let appearance_loop = match front_end.recognise_place(graph, keyframe) {
-            Some(place) => self
-                .close_appearance_loop(graph, keyframe, &place)?
-                .closed(),
+        let appearance_loop = self.recognised_loop(graph, front_end, keyframe)?;
+        stage("keyframe: appearance loop", &mut stage_times);
+        let plan = {
+            let g = graph.read();
+            let predictions = self.loop_predictions(&g, keyframe)?;
+            front_end.plan_guided_search(&g, keyframe, &predictions)
+        };
+        let found = front_end.guided_search(plan);
+        let problem = MetricLoopProblem::from_graph(&graph.read(), keyframe, &found)?;
+        let fit = match problem {
+            Some(problem) => Some(problem.solve(self.camera(), &self.metric_loop_params())?),
             None => None,
         };
-        stage("keyframe: appearance loop", &mut stage_times);
-        let predictions = self.loop_predictions(graph, keyframe)?;
-        let found = front_end.guided_search(graph, keyframe, &predictions);
-        let metric_loops = self.close_metric_loops(graph, keyframe, &found)?;
+        let mut g = graph.write();
+        let metric_loops = match fit {
+            Some(fit) => fit.apply(&mut g)?,
+            None => Vec::new(),
+        };
         stage("keyframe: metric loop", &mut stage_times);
-        let measurements = front_end.measurements(graph, keyframe);
-        let created = self.add_points(graph, keyframe, &measurements)?;
+        let measurements = front_end.measurements(&g, keyframe);
+        let created = self.add_points(&mut g, keyframe, &measurements)?;
+        drop(g);
         front_end.points_created(&created);
         stage("keyframe: new points", &mut stage_times);
         Ok(KeyframeReport {
@@ -188,6 +208,90 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
             optimisation: None,
         })
     }
+
+    /// Tracking and insertion: the keyframe made and how many matches it was tracked with. A
+    /// given pose (no solve) of a new map is tracked and inserted under one write lock with
+    /// the new map's start; otherwise prepared under the read lock, solved with none, and
+    /// inserted under a short write lock.
+    fn track_and_insert(
+        &mut self,
+        graph: &SharedGraph<N>,
+        front_end: &mut impl FrontEnd<N>,
+    ) -> Result<(KeyframeId, usize), MappingError> {
+        if front_end.new_map() {
+            let mut g = graph.write();
+            g.start_map();
+            let (prepared, tracked, given) = self.prepare(&g, front_end)?;
+            let frame = prepared.solve(self.camera(), &self.config().tracking)?;
+            return Ok((self.insert(&mut g, front_end, frame, given)?, tracked));
+        }
+        let (prepared, tracked, given) = self.prepare(&graph.read(), front_end)?;
+        let frame = prepared.solve(self.camera(), &self.config().tracking)?;
+        Ok((
+            self.insert(&mut graph.write(), front_end, frame, given)?,
+            tracked,
+        ))
+    }
+
+    /// Inserts the tracked `frame`: a given pose tracked against a keyframe that moved since
+    /// (another thread) is rebased onto it first (as `insert_keyframe` rebases a frame tracked
+    /// here); the keyframe's edges are made as for any given pose.
+    fn insert(
+        &mut self,
+        graph: &mut SlamGraph<N>,
+        front_end: &mut impl FrontEnd<N>,
+        mut frame: super::mapper::TrackedFrame<N>,
+        given: bool,
+    ) -> Result<KeyframeId, MappingError> {
+        if given && let Some((reference, then, version)) = front_end.given_pose_tracked_against() {
+            frame.camera_from_world =
+                super::mapper::rebased(graph, frame.camera_from_world, reference, &then, version);
+        }
+        Ok(self.insert_keyframe(graph, frame)?.0)
+    }
+
+    /// The front-end's matches and pose of the new keyframe, its tracking prepared: with the
+    /// number of matches and whether the pose was given.
+    fn prepare(
+        &self,
+        graph: &SlamGraph<N>,
+        front_end: &mut impl FrontEnd<N>,
+    ) -> Result<(super::mapper::PreparedFrame<N>, usize, bool), MappingError> {
+        let candidates = graph
+            .reference()
+            .map(|r| tracking_candidates(graph, r))
+            .unwrap_or_default();
+        let matches = front_end.match_candidates(graph, &candidates);
+        let given = front_end.given_pose(graph, &matches);
+        let tracked = matches.len();
+        Ok((
+            self.prepare_track(graph, matches, given)?,
+            tracked,
+            given.is_some(),
+        ))
+    }
+
+    /// An appearance loop the front-end recognises for `keyframe` (the simulator's; the live
+    /// system's loop closer runs in its own thread): planned under the read lock, fitted with
+    /// none, written under a short write lock.
+    fn recognised_loop(
+        &self,
+        graph: &SharedGraph<N>,
+        front_end: &mut impl FrontEnd<N>,
+        keyframe: KeyframeId,
+    ) -> Result<Option<KeyframeId>, MappingError> {
+        let place = front_end.recognise_place(&graph.read(), keyframe);
+        let Some(place) = place else {
+            return Ok(None);
+        };
+        let plan = self.plan_appearance_loop(&graph.read(), keyframe, &place)?;
+        Ok(match self.fit_appearance_loop(plan) {
+            Some(fit) => self
+                .apply_appearance_loop(&mut graph.write(), &fit)?
+                .closed(),
+            None => None,
+        })
+    }
 }
 
 #[cfg(test)]
@@ -197,6 +301,20 @@ mod tests {
     use geom::{PinholeCamera, StereoCamera};
     use lie::{LieGroup, Se3, So3};
     use nalgebra::Vector3;
+
+    /// The keyframe `mapper` makes in `graph` at `pose` tracked against `against` (a [`Given`]
+    /// front-end), through the stages of the shared graph.
+    fn map(
+        mapper: &mut Mapper<StereoCamera, 3>,
+        graph: &mut SlamGraph<3>,
+        pose: Sim3,
+        against: Option<(KeyframeId, Sim3, crate::map::Version)>,
+    ) -> KeyframeId {
+        let shared = SharedGraph::new(std::mem::take(graph));
+        let report = mapper.map_keyframe(&shared, &mut Given { pose, against });
+        *graph = shared.into_inner();
+        report.unwrap().keyframe
+    }
 
     /// A front-end that gives the pose (tracked against `against` in another thread's time)
     /// and nothing else.
@@ -230,12 +348,15 @@ mod tests {
         ) -> Option<AppearanceMatch<3>> {
             None
         }
-        fn guided_search(
+        type GuidedSearch = ();
+        fn plan_guided_search(
             &mut self,
             _: &SlamGraph<3>,
             _: KeyframeId,
             _: &[(PointId, SVector<f64, 3>)],
-        ) -> Vec<(PointId, SVector<f64, 3>)> {
+        ) {
+        }
+        fn guided_search(&mut self, _: ()) -> Vec<(PointId, SVector<f64, 3>)> {
             Vec::new()
         }
         fn measurements(
@@ -259,29 +380,11 @@ mod tests {
         let pose = |x: f64, yaw: f64| {
             Sim3::from_se3(&Se3::new(So3::rot_y(yaw), Vector3::new(x, 0.0, 0.0)))
         };
-        let first = mapper
-            .map_keyframe(
-                &mut g,
-                &mut Given {
-                    pose: Sim3::identity(),
-                    against: None,
-                },
-            )
-            .unwrap()
-            .keyframe;
+        let first = map(&mut mapper, &mut g, Sim3::identity(), None);
         let (then, version) = (g.pose(first).unwrap(), g.version());
         let tracked = pose(0.3, 0.1);
         // Unmoved: inserted as given.
-        let k = mapper
-            .map_keyframe(
-                &mut g,
-                &mut Given {
-                    pose: tracked,
-                    against: Some((first, then, version)),
-                },
-            )
-            .unwrap()
-            .keyframe;
+        let k = map(&mut mapper, &mut g, tracked, Some((first, then, version)));
         assert!((g.pose(k).unwrap().log() - tracked.log()).norm() < 1e-12);
         // Moved meanwhile: `first`'s map merged into an older one, 5 m away.
         let mut h = SlamGraph::<3>::new();
@@ -292,16 +395,7 @@ mod tests {
         let (then, version) = (h.pose(first).unwrap(), h.version());
         let target = pose(5.0, 0.4);
         h.merge_map(first, &target, old).unwrap();
-        let k = mapper
-            .map_keyframe(
-                &mut h,
-                &mut Given {
-                    pose: tracked,
-                    against: Some((first, then, version)),
-                },
-            )
-            .unwrap()
-            .keyframe;
+        let k = map(&mut mapper, &mut h, tracked, Some((first, then, version)));
         let relative = h
             .pose(k)
             .unwrap()
@@ -328,16 +422,7 @@ mod tests {
         let mut g = SlamGraph::<3>::new();
         let mut given = |g: &mut SlamGraph<3>, x: f64| {
             let pose = Sim3::from_se3(&Se3::new(So3::identity(), Vector3::new(x, 0.0, 0.0)));
-            mapper
-                .map_keyframe(
-                    g,
-                    &mut Given {
-                        pose,
-                        against: None,
-                    },
-                )
-                .unwrap()
-                .keyframe
+            map(&mut mapper, g, pose, None)
         };
         let a = given(&mut g, 0.0);
         let b = given(&mut g, 0.2);

@@ -3,7 +3,7 @@
 //! `(pixel, depth)` samples of its map points for the depth regression of monocular maps
 //! (thesis §5.3.1).
 
-use super::{PlaceRecognitionConfig, PlaceRecognitionError};
+use super::types::{PlaceRecognitionConfig, PlaceRecognitionError};
 use crate::frame::depth_off_edges;
 use geom::PinholeCamera;
 use nalgebra::{Vector2, Vector3};

@@ -24,7 +24,7 @@
 //! [`depth_noise`]: PlaceRecognitionConfig::depth_noise
 
 use super::features::KeyframeFeatures;
-use super::{Alignment, LoopMatch, PlaceRecognitionConfig};
+use super::types::{Alignment, LoopMatch, PlaceRecognitionConfig};
 use geom::CameraModel;
 use geom::align::align_se3;
 use geom::pnp::PnpEstimator;

@@ -1,6 +1,8 @@
 //! The live system's parameters: every threshold with a default chosen from a principle (the
 //! reason is written beside it), all overridable in a YAML config file (`dwslam run --config`).
 
+mod slam;
+
 use geom::PinholeCamera;
 use serde::Deserialize;
 use std::path::Path;
@@ -88,10 +90,8 @@ pub struct MonoConfig {
     /// Features (map points and filters) the exploration keeps (300, as many as the corner
     /// tracks: ≈ one per 32×32 px at 640×480, the density of the stereo system's 300 new points
     /// per keyframe). The thesis's §3.4.3 density for its simulated exploration, 150, left a
-    /// live camera too few map points where some leave the view at once: measured over the
-    /// eleven monocular test sequences (2026-12-02, with `max_refind` 200), 150 lost the scale
-    /// of 7-Scenes in a stretch of 20 tracked points (21 cm ATE), 200 as well (55 cm), 300
-    /// tracked it (4.3 cm) and lowered the rendered rooms from 1.0–3.1 to 0.8–1.6 cm.
+    /// live camera too few map points where some leave the view at once (measured on eleven
+    /// monocular sequences: bench/README.md, "The defaults' measurements").
     pub max_features: usize,
     /// A new feature needs a feature-free box of this half-size, pixels (12).
     pub feature_spacing: f64,
@@ -115,11 +115,20 @@ pub struct MonoConfig {
     /// a second at 30 Hz; a camera that has not moved enough by then is better started anew
     /// from what it sees now).
     pub max_bootstrap_frames: usize,
-    /// Start a new map after this many frames in a row in which the corner tracks could not be
-    /// followed (10, a third of a second at 30 Hz: a black frame or a short glitch is waited
+    /// The camera is lost after this many frames in a row in which the corner tracks could not
+    /// be followed (10, a third of a second at 30 Hz: a black frame or a short glitch is waited
     /// out against the last good frame; after longer, the camera has moved too far for LK
     /// from there). A refused frame whose place the map has is relocalised there at once.
     pub max_refused: usize,
+    /// A frame in which fewer than this fraction of the previous frame's tracks survive is
+    /// refused (0.2: between two frames of a moving camera most corners stay in view and LK
+    /// follows them; losing four fifths at once is a broken frame — black, corrupt,
+    /// textureless — or a jump); the tracks wait for the next frame in the last good one.
+    pub min_surviving_fraction: f64,
+    /// New corners are selected when fewer than this fraction of `tracks` live (0.9: the
+    /// selection costs a FAST pass over the image, a few milliseconds, so it runs every few
+    /// frames rather than in every one, and the tracks stay within 10 % of their number).
+    pub replenish_fraction: f64,
     /// Search the map points of nearby keyframes that no track measures, at the pose predicted
     /// for the frame (thesis §6.2.5: tracking against the points of the reference's
     /// neighbourhood, so a revisit measures the old map instead of triangulating it anew).
@@ -144,45 +153,84 @@ pub struct MonoConfig {
     /// warped template and a few correlations, ≈ 4 µs, so 500 is ≤ 2 ms), not a choice of
     /// points — the thesis's tracker searches every candidate of the neighbourhood. 500: the
     /// monocular sequences here have at most ~400 candidates in a frame (400 and no bound give
-    /// identical runs on all seven). The earlier 200, set when tracking had no time to spare,
-    /// cut the search in a few frames (2026-12-02, Sim(3)-aligned ATE live / after, 200 → 500:
-    /// 7-Scenes 4.28 / 4.10 → 3.87 / 3.80 cm, rendered room seed 2 1.58 / 1.37 → 1.56 /
-    /// 0.60 cm, building 29.8 / 7.1 → 29.7 / 7.9 cm and seed 3 27.4 / 23.9 → 27.6 / 30.5 cm
-    /// after the loop correction; KITTI, the room seeds 1 and 3, the revisit room, the courtyard
-    /// (three seeds) and building seed 2 unchanged within 0.1 cm).
+    /// identical runs on all seven; the earlier 200 cut the search in a few frames:
+    /// bench/README.md, "The defaults' measurements").
     pub max_refind: usize,
     /// Optimise each keyframe by the monocular double window (thesis §6.2.7; windows and
     /// iterations from `optimiser`, covisibility edges by local registration with
     /// `mapping.theta`) instead of the exploration's sliding window of `window` keyframes.
-    /// Off: on images it is not yet as accurate as the sliding window (2026-12-01, KITTI left
-    /// 31.8 against 7.8 cm, 7-Scenes 13.1 against 10.5 cm — its gauge is left to the damping,
-    /// the window's is its two oldest keyframes).
+    /// Off: on images it is not yet as accurate as the sliding window (its gauge is left to
+    /// the damping, the window's is its two oldest keyframes; bench/README.md, "The defaults'
+    /// measurements").
     pub double_window: bool,
-    /// How the loops found by appearance correct the map: `sim3` (thesis
-    /// ch. 5: rotation, translation and scale drift) or `se3` (rigid, for the thesis's
-    /// comparison; without `correct_live` the other correction is written too,
-    /// `trajectory_final_se3.tum` / `_sim3`).
-    pub loop_correction: String,
+    /// How the loops found by appearance correct the map: `sim3` (thesis ch. 5: rotation,
+    /// translation and scale drift) or `se3` (rigid, for the thesis's comparison; without
+    /// `correct_live` the other correction is written too, `trajectory_final_se3.tum` /
+    /// `_sim3`).
+    pub loop_correction: LoopCorrection,
+    /// Detections in a row that must agree before a loop (or a join of two maps) is accepted
+    /// (3: a repetitive place — the same façade, a corridor like another — can pass the
+    /// appearance and 3-point checks once or twice, but its successive detections jump between
+    /// unrelated old places; a real revisit keeps finding the old trajectory where the
+    /// odometry since the last detection says it should be).
+    pub loop_consistency: usize,
+    /// When two successive detections agree: the second's similarity matches the first's
+    /// carried by the odometry on both sides within these.
+    pub loop_agreement: LoopAgreement,
+    /// A loop may move the current keyframe by at most this fraction of the path travelled
+    /// since the old keyframe (0.1: monocular odometry drifts by a few per cent of the distance
+    /// — 1.7 % on the rendered building loop, 1–3 % in the literature — so a loop that needs
+    /// ten per cent joins two places that only look alike, as the corridors of a building do).
+    pub max_loop_drift: f64,
     /// Correct the map when a loop is accepted, and go on exploring in the corrected map
     /// (thesis ch. 5: the map points of the old place are found again in the corrected map),
     /// instead of once at the end of the run. With it the run writes only
-    /// `mono.loop_correction`'s correction. Off by default, measured (deterministic runs,
-    /// Sim(3)-aligned ATE live / final): building 3.47 / 0.72 m on against 3.61 / 0.64 m off,
-    /// courtyard laps 7.57 / 6.63 against 7.52 / 2.04 m, room 0.40 / 0.42 against 0.45 /
-    /// 0.40 m — corrected live, far fewer later loops are accepted (courtyard 9 against 21,
-    /// room 7 against 23), and the correction at the end with all of them is the better one.
+    /// `mono.loop_correction`'s correction. Off by default: corrected live, far fewer later
+    /// loops are accepted, and the correction at the end with all of them is the better one
+    /// (bench/README.md, "The defaults' measurements").
     pub correct_live: bool,
     /// Keyframes outside the keyframe BA's window that measure its points join it as fixed
     /// poses, at most this many (10, as many as the window: those measuring most of the
     /// window's points carry nearly all the old map's hold on them). A revisited place's old
     /// keyframes keep its re-found points, and through them the new keyframes, where the old
     /// map has them: without them the window re-estimates the points from its own keyframes
-    /// alone and the scale drifts. Measured with the covisible window and the outlier removal
-    /// that come with it (2026-12-02, Sim(3)-aligned live ATE, before → after): 7-Scenes
-    /// 12.4 → 4.4 cm, KITTI 7.5 → 4.5 cm, rendered building 3.6 → 1.8 m and 2.8 → 1.3 m (two
-    /// seeds), courtyard laps 7.5 → 0.18 m and 1.8 → 0.16 m, room 0.45 → 0.73 m, 0.81 → 0.05 m,
-    /// 1.3 → 0.93 m (three seeds; the room's fast turns lose the map's scale either way).
+    /// alone and the scale drifts (bench/README.md, "The defaults' measurements").
     pub fixed_observers: usize,
+}
+
+/// How monocular loops correct the map (thesis ch. 5).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LoopCorrection {
+    /// In Sim(3): rotation, translation and scale drift (thesis eq. 5.17).
+    #[default]
+    Sim3,
+    /// In SE(3): rotation and translation only (the thesis's comparison).
+    Se3,
+}
+
+/// When two successive loop detections agree (`MonoConfig::loop_agreement`): 5° of rotation,
+/// 10 % of scale, and a tenth of the old keyframe's median scene depth of translation (the
+/// keyframe criterion's 10 %).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LoopAgreement {
+    /// Degrees of rotation.
+    pub rotation_deg: f64,
+    /// Relative difference of scale (of the log of the scale ratio).
+    pub scale: f64,
+    /// Translation, as a fraction of the old keyframe's median scene depth.
+    pub translation: f64,
+}
+
+impl Default for LoopAgreement {
+    fn default() -> Self {
+        LoopAgreement {
+            rotation_deg: 5.0,
+            scale: 0.1,
+            translation: 0.1,
+        }
+    }
 }
 
 impl Default for MonoConfig {
@@ -202,12 +250,17 @@ impl Default for MonoConfig {
             bootstrap_min_sigma: 0.25,
             max_bootstrap_frames: 30,
             max_refused: 10,
+            min_surviving_fraction: 0.2,
+            replenish_fraction: 0.9,
             refind: true,
             verify_tracks: true,
             refind_keyframes: 8,
             max_refind: 500,
             double_window: false,
-            loop_correction: "sim3".into(),
+            loop_correction: LoopCorrection::Sim3,
+            loop_consistency: 3,
+            loop_agreement: LoopAgreement::default(),
+            max_loop_drift: 0.1,
             correct_live: false,
             fixed_observers: 10,
         }
@@ -346,16 +399,12 @@ pub struct TrackerConfig {
     /// starts a new map at the motion model's guess, in which tracking goes on until an
     /// appearance loop finds the old map and merges the two (ORB-SLAM3's atlas, which starts
     /// one after 3 s without an IMU). 3 s as there: a camera that comes back to the map
-    /// sooner is relocalised at its first frame that shows a mapped place (7-Scenes with
-    /// frames 301–399 cut: the far side of the table, lost for 2.1 s, relocalised when the
-    /// map comes back into view), and keeps a trajectory without guessed offsets; with 1 s a
-    /// new map started there at the guess, 1.5 m off until the merge 4 s later (live ATE 3.3
-    /// → 14.8 cm). A camera that does not come back within it (a view the map never held)
-    /// goes on in the new map instead of staying lost. `.inf` never starts one. A monocular
-    /// camera relocalises alike (P3P against the keyframes' points) for as long, then
-    /// bootstraps a new map; 0 starts one at once, as before it relocalised (7-Scenes mono
-    /// with frames 301–399 cut: relocalised after 2.4 s, 814 of 901 frames posed in one map,
-    /// ATE 3.80 cm; at once: a new map, 589 frames posed, 4.79 cm).
+    /// sooner is relocalised at its first frame that shows a mapped place, and keeps a
+    /// trajectory without guessed offsets; a camera that does not come back within it (a view
+    /// the map never held) goes on in the new map instead of staying lost (bench/README.md,
+    /// "The defaults' measurements"). `.inf` never starts one. A monocular camera relocalises
+    /// alike (P3P against the keyframes' points) for as long, then bootstraps a new map (at
+    /// once where nothing can find it: no vocabulary); 0 starts one at once.
     pub new_map_after: f64,
 }
 
@@ -453,7 +502,7 @@ pub struct OptimiserConfig {
     /// map locally exact but, where a lap's metric loops pull old keyframes into the inner
     /// window, they move those towards the newer (drifted) view instead of spreading the
     /// correction (rendered courtyard seed 3: first-lap keyframes 1.5–2.5 cm off against 0.5
-    /// cm live). 5: see the measurements in `LiveSystem::finish`.
+    /// cm live). 5: bench/README.md, "The defaults' measurements".
     pub final_iterations: usize,
 }
 
@@ -489,12 +538,8 @@ pub struct StereoConfig {
     /// map costs little accuracy and saves most of a stereo frame's time: level 1 matches a
     /// quarter of the pixels over half the disparities (KITTI 1226×370: frame 45 → 12 ms;
     /// rendered 640×480: 35 → 74 frames per second, deterministic). 0 by default because full
-    /// resolution was the more accurate (deterministic ATE live / after, level 0 against 1,
-    /// 2026-12-03, eighth session): rendered courtyard stereo 0.69 / 0.48 against 0.84 / 0.59 cm,
-    /// KITTI 6.09 / 5.27 against 7.03 / 6.37 cm, room stereo 0.13 / 0.09 against 0.14 / 0.08 cm,
-    /// EuRoC 0.06 cm both; on the rendered building level 1 changed the keyframes enough that a
-    /// false appearance loop (3.16 m of correction on 30 matches) was closed: 3.00 / 0.55
-    /// against 2.17 / 19.86 cm. The points' own measurements are as accurate at either level
+    /// resolution was the more accurate on every sequence measured (bench/README.md, "The
+    /// defaults' measurements"). The points' own measurements are as accurate at either level
     /// (`tests/stereo_rendered.rs`); which corners get one differs.
     pub level: usize,
     /// Threads block matching runs on, each on a horizontal band of the image (the same
@@ -563,101 +608,151 @@ impl SystemConfig {
         Ok(config)
     }
 
-    /// Checks the ranges.
+    /// Checks the ranges, section by section (each section's own `validate`), and the values
+    /// that relate sections; the message names the key.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let bad = |s: String| Err(ConfigError::Invalid(s));
+        let invalid = ConfigError::Invalid;
         if !(self.pixel_noise.is_finite() && self.pixel_noise > 0.0) {
-            return bad(format!(
+            return Err(invalid(format!(
                 "pixel_noise must be positive (got {})",
                 self.pixel_noise
-            ));
-        }
-        let t = &self.tracker;
-        if t.pyramid_levels == 0 || t.dense_finest_level >= t.pyramid_levels {
-            return bad(format!(
-                "tracker.dense_finest_level ({}) must be below tracker.pyramid_levels ({})",
-                t.dense_finest_level, t.pyramid_levels
-            ));
-        }
-        if !(t.search_radius > 0.0 && t.wide_search_radius >= t.search_radius) {
-            return bad(
-                "tracker.search_radius must be positive and at most tracker.wide_search_radius"
-                    .into(),
-            );
-        }
-        if !(t.min_ncc > 0.0 && t.min_ncc < 1.0) {
-            return bad(format!(
-                "tracker.min_ncc must lie in (0, 1) (got {})",
-                t.min_ncc
-            ));
-        }
-        if t.new_map_after.is_nan() || t.new_map_after < 0.0 {
-            return bad(format!(
-                "tracker.new_map_after ({}) must be a number of seconds, at least 0 (.inf: never)",
-                t.new_map_after
-            ));
-        }
-        if t.min_tracked < 6 || t.min_good < t.min_tracked {
-            return bad(format!(
-                "tracker.min_tracked must be at least 6 (a pose) and at most tracker.min_good (got {}, {})",
-                t.min_tracked, t.min_good
-            ));
-        }
-        let k = &self.keyframes;
-        if !(k.parallax > 0.0
-            && k.rotation_deg > 0.0
-            && (0.0..=1.0).contains(&k.min_found_fraction))
-        {
-            return bad("keyframes.parallax and rotation_deg must be positive, min_found_fraction in [0, 1]".into());
-        }
-        if self.optimiser.inner == 0 || self.optimiser.iterations == 0 {
-            return bad("optimiser.inner and optimiser.iterations must be at least 1".into());
-        }
-        if self.mapping.theta == 0 {
-            return bad("mapping.theta must be at least 1".into());
+            )));
         }
         if self
             .depth_noise
             .is_some_and(|c| !(c.is_finite() && c > 0.0))
         {
-            return bad("depth_noise must be positive".into());
+            return Err(invalid("depth_noise must be positive".into()));
         }
-        self.dense
-            .validate()
-            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        self.tracker.validate().map_err(invalid)?;
+        self.keyframes.validate().map_err(invalid)?;
+        self.mapping.validate().map_err(invalid)?;
+        self.optimiser.validate().map_err(invalid)?;
+        self.stereo.validate().map_err(invalid)?;
+        self.loops.validate().map_err(invalid)?;
+        self.mono.validate().map_err(invalid)?;
+        self.dense.validate().map_err(|e| invalid(e.to_string()))?;
+        if self.stereo.level >= self.tracker.pyramid_levels {
+            return Err(invalid(format!(
+                "stereo.level ({}) must be below tracker.pyramid_levels ({})",
+                self.stereo.level, self.tracker.pyramid_levels
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl TrackerConfig {
+    /// Checks the ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let t = self;
+        if t.pyramid_levels == 0 || t.dense_finest_level >= t.pyramid_levels {
+            return Err(format!(
+                "tracker.dense_finest_level ({}) must be below tracker.pyramid_levels ({})",
+                t.dense_finest_level, t.pyramid_levels
+            ));
+        }
+        if !(t.search_radius > 0.0 && t.wide_search_radius >= t.search_radius) {
+            return Err(
+                "tracker.search_radius must be positive and at most tracker.wide_search_radius"
+                    .into(),
+            );
+        }
+        if !(t.min_ncc > 0.0 && t.min_ncc < 1.0) {
+            return Err(format!(
+                "tracker.min_ncc must lie in (0, 1) (got {})",
+                t.min_ncc
+            ));
+        }
+        if t.new_map_after.is_nan() || t.new_map_after < 0.0 {
+            return Err(format!(
+                "tracker.new_map_after ({}) must be a number of seconds, at least 0 (.inf: never)",
+                t.new_map_after
+            ));
+        }
+        if t.min_tracked < 6 || t.min_good < t.min_tracked {
+            return Err(format!(
+                "tracker.min_tracked must be at least 6 (a pose) and at most tracker.min_good (got {}, {})",
+                t.min_tracked, t.min_good
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl KeyframeConfig {
+    /// Checks the ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.parallax > 0.0
+            && self.rotation_deg > 0.0
+            && (0.0..=1.0).contains(&self.min_found_fraction))
+        {
+            return Err("keyframes.parallax and rotation_deg must be positive, min_found_fraction in [0, 1]".into());
+        }
+        Ok(())
+    }
+}
+
+impl MappingConfig {
+    /// Checks the ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.theta == 0 {
+            return Err("mapping.theta must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+impl OptimiserConfig {
+    /// Checks the ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.inner == 0 || self.iterations == 0 {
+            return Err("optimiser.inner and optimiser.iterations must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+impl StereoConfig {
+    /// Checks the ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.threads == Some(0) {
+            return Err("stereo.threads must be at least 1".into());
+        }
+        if self.max_disparity == Some(0) {
+            return Err("stereo.max_disparity must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+impl LoopConfig {
+    /// Checks the ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
         for (name, v) in [
-            ("loops.max_drift_of_path", self.loops.max_drift_of_path),
+            ("loops.max_drift_of_path", self.max_drift_of_path),
             (
                 "loops.max_drift_of_scene_depth",
-                self.loops.max_drift_of_scene_depth,
+                self.max_drift_of_scene_depth,
             ),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return bad(format!("{name} must be a fraction >= 0 (got {v})"));
+                return Err(format!("{name} must be a fraction >= 0 (got {v})"));
             }
         }
-        if self.loops.queue == 0 {
-            return bad("loops.queue must be at least 1".into());
+        if self.queue == 0 {
+            return Err("loops.queue must be at least 1".into());
         }
-        self.loops
-            .place_recognition
-            .validate()
-            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
-        if self.stereo.level >= self.tracker.pyramid_levels {
-            return bad(format!(
-                "stereo.level ({}) must be below tracker.pyramid_levels ({})",
-                self.stereo.level, self.tracker.pyramid_levels
-            ));
-        }
-        if self.stereo.threads == Some(0) {
-            return bad("stereo.threads must be at least 1".into());
-        }
-        if self.stereo.max_disparity == Some(0) {
-            return bad("stereo.max_disparity must be at least 1".into());
-        }
-        let m = &self.mono;
+        self.place_recognition.validate().map_err(|e| e.to_string())
+    }
+}
+
+impl MonoConfig {
+    /// Checks the ranges; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let m = self;
         if m.tracks < 8 || m.levels == 0 || m.window < 2 || m.max_features < 8 {
-            return bad(
+            return Err(
                 "mono.tracks and mono.max_features must be at least 8, mono.levels at least 1, mono.window at least 2"
                     .into(),
             );
@@ -669,16 +764,32 @@ impl SystemConfig {
             && m.feature_spacing >= 0.0
             && m.max_forward_backward > 0.0)
         {
-            return bad("mono.keyframe_distance, bootstrap_depth_error, bootstrap_min_sigma and max_forward_backward must be positive, the spacings non-negative".into());
+            return Err("mono.keyframe_distance, bootstrap_depth_error, bootstrap_min_sigma and max_forward_backward must be positive, the spacings non-negative".into());
         }
-        if !matches!(m.loop_correction.as_str(), "sim3" | "se3") {
-            return bad(format!(
-                "mono.loop_correction must be sim3 or se3 (got {})",
-                m.loop_correction
+        if m.max_bootstrap_frames == 0 || m.max_refused == 0 || m.loop_consistency == 0 {
+            return Err(
+                "mono.max_bootstrap_frames, mono.max_refused and mono.loop_consistency must be at least 1"
+                    .into(),
+            );
+        }
+        let fraction = |x: f64| (0.0..=1.0).contains(&x);
+        if !fraction(m.min_surviving_fraction) || !fraction(m.replenish_fraction) {
+            return Err(
+                "mono.min_surviving_fraction and mono.replenish_fraction must lie in [0, 1]".into(),
+            );
+        }
+        let a = &m.loop_agreement;
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        if !(positive(a.rotation_deg) && positive(a.scale) && positive(a.translation)) {
+            return Err(
+                "mono.loop_agreement's rotation_deg, scale and translation must be positive".into(),
+            );
+        }
+        if !(m.max_loop_drift.is_finite() && m.max_loop_drift >= 0.0) {
+            return Err(format!(
+                "mono.max_loop_drift must be a fraction >= 0 (got {})",
+                m.max_loop_drift
             ));
-        }
-        if m.max_bootstrap_frames == 0 || m.max_refused == 0 {
-            return bad("mono.max_bootstrap_frames and mono.max_refused must be at least 1".into());
         }
         Ok(())
     }

@@ -1,0 +1,384 @@
+//! The back-end's workers (thesis §6.5.2): a stage of work fed by the tracking thread — double
+//! window optimisation, loop closure — that runs in a thread of its own ([`Mode::Threaded`])
+//! or inline, in the calling thread, at the moment its job is given ([`Mode::Deterministic`]).
+//!
+//! Jobs go to the thread through a bounded queue and its outputs come back through a channel,
+//! which the tracking thread drains ([`Worker::poll`]); nothing is shared in vectors behind
+//! locks. A worker that dies — a panic in its stage, or a thread that ends — never loses the
+//! run: the next time the tracking thread talks to it, it finds the channel disconnected, joins
+//! the thread (a panic becomes a warning with its message), and runs the stage inline from then
+//! on, starting with the jobs the thread had not answered. A stage's state lives in the stage;
+//! a stage lost in a panic is made again ([`Worker::new`]'s `make`).
+//!
+//! [`Mode::Threaded`]: crate::Mode::Threaded
+//! [`Mode::Deterministic`]: crate::Mode::Deterministic
+
+use slam::map::SharedGraph;
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+/// A stage of work on the shared graph.
+pub(crate) trait Stage<const N: usize>: Send + 'static {
+    /// One piece of work.
+    type Job: Clone + Send + 'static;
+    /// What a job gives back (results, errors as warnings, timings).
+    type Output: Send + 'static;
+    /// Does `job`, appending what it gives to `out`.
+    fn run(&mut self, graph: &SharedGraph<N>, job: &Self::Job, out: &mut Vec<Self::Output>);
+}
+
+/// A fault a test makes a worker thread suffer after it has answered `after` jobs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fault {
+    /// The stage panics at its next job.
+    Panic {
+        /// Jobs answered first.
+        after: usize,
+    },
+    /// The thread ends without a word (its channels disconnect).
+    Disconnect {
+        /// Jobs answered first.
+        after: usize,
+    },
+}
+
+/// A job numbered in the order given.
+type Numbered<J> = (u64, J);
+
+enum Runner<S: Stage<N>, const N: usize> {
+    Inline(Box<S>),
+    Thread {
+        jobs: SyncSender<Numbered<S::Job>>,
+        outputs: Receiver<Numbered<Vec<S::Output>>>,
+        handle: JoinHandle<S>,
+    },
+    /// Only while changing from one to the other.
+    Changing,
+}
+
+/// A stage run in its own thread or inline (see the [module docs](self)).
+pub(crate) struct Worker<S: Stage<N>, const N: usize> {
+    name: &'static str,
+    graph: Arc<SharedGraph<N>>,
+    runner: Runner<S, N>,
+    make: Box<dyn Fn() -> S + Send>,
+    /// Jobs given to the thread and not answered yet, oldest first.
+    pending: VecDeque<Numbered<S::Job>>,
+    next: u64,
+    /// Outputs of inline jobs not polled yet.
+    ready: Vec<S::Output>,
+    /// A full queue means a job is waiting anyway (a wake-up): the new one is dropped.
+    coalesce: bool,
+    /// Jobs that found the queue full (and were dropped).
+    pub queue_full: usize,
+    /// What became of the thread, if it died.
+    pub deaths: Vec<String>,
+}
+
+impl<S: Stage<N>, const N: usize> Worker<S, N> {
+    /// A worker named `name` running `stage` on `graph`: in a thread of its own with a queue of
+    /// `queue` jobs (`threaded`), or inline. `make` makes the stage again if a thread dies with
+    /// it. With `coalesce`, a job that finds the queue full is dropped without being counted
+    /// (a wake-up: the job waiting will see what this one would have). `fault`: a test's
+    /// fault for the thread.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        name: &'static str,
+        graph: Arc<SharedGraph<N>>,
+        stage: S,
+        make: Box<dyn Fn() -> S + Send>,
+        threaded: bool,
+        queue: usize,
+        coalesce: bool,
+        fault: Option<Fault>,
+    ) -> Self {
+        let runner = if threaded {
+            spawn(name, graph.clone(), stage, queue, fault)
+        } else {
+            Runner::Inline(Box::new(stage))
+        };
+        Worker {
+            name,
+            graph,
+            runner,
+            make,
+            pending: VecDeque::new(),
+            next: 0,
+            ready: Vec::new(),
+            coalesce,
+            queue_full: 0,
+            deaths: Vec::new(),
+        }
+    }
+
+    /// Whether the stage runs in its own thread (it may have died since: then inline).
+    pub fn threaded(&self) -> bool {
+        matches!(self.runner, Runner::Thread { .. })
+    }
+
+    /// A sender of jobs to the thread from another thread (the loop closer wakes the
+    /// optimiser after closing a loop); `None` inline. Its jobs are not replayed if the thread
+    /// dies.
+    pub fn sender(&self) -> Option<SyncSender<Numbered<S::Job>>> {
+        match &self.runner {
+            Runner::Thread { jobs, .. } => Some(jobs.clone()),
+            _ => None,
+        }
+    }
+
+    /// Gives the worker `job`: queued for the thread, or run now.
+    pub fn submit(&mut self, job: S::Job) {
+        let number = self.next;
+        self.next += 1;
+        if let Runner::Thread { jobs, handle, .. } = &self.runner {
+            match jobs.try_send((number, job.clone())) {
+                Ok(()) => {
+                    self.pending.push_back((number, job));
+                    return;
+                }
+                // A thread that has ended cannot empty its queue: it falls back below.
+                Err(TrySendError::Full(_)) if !handle.is_finished() => {
+                    if !self.coalesce {
+                        self.queue_full += 1;
+                    }
+                    return;
+                }
+                Err(_) => self.fall_back(false),
+            }
+        }
+        self.run_inline(&job);
+    }
+
+    fn run_inline(&mut self, job: &S::Job) {
+        if let Runner::Inline(stage) = &mut self.runner {
+            stage.run(&self.graph, job, &mut self.ready);
+        }
+    }
+
+    /// The outputs so far (what inline jobs gave, what the thread sent back).
+    pub fn poll(&mut self) -> Vec<S::Output> {
+        let mut disconnected = false;
+        if let Runner::Thread { outputs, .. } = &self.runner {
+            loop {
+                match outputs.try_recv() {
+                    Ok((number, out)) => {
+                        answered(&mut self.pending, number);
+                        self.ready.extend(out);
+                    }
+                    Err(TryRecvError::Empty) => break,
+                    Err(TryRecvError::Disconnected) => {
+                        disconnected = true;
+                        break;
+                    }
+                }
+            }
+        }
+        if disconnected {
+            self.fall_back(false);
+        }
+        std::mem::take(&mut self.ready)
+    }
+
+    /// Ends the worker: a thread answers every job queued and ends (or died: its jobs then
+    /// run inline). Returns the last outputs and the stage.
+    pub fn finish(mut self) -> (Vec<S::Output>, S, Vec<String>) {
+        if let Runner::Thread { jobs, outputs, .. } = &mut self.runner {
+            // Dropping our sender ends the thread once the queue is empty (a clone held by
+            // another worker's thread is gone once that worker has finished).
+            let (closed, _) = sync_channel(1);
+            drop(std::mem::replace(jobs, closed));
+            while let Ok((number, out)) = outputs.recv() {
+                answered(&mut self.pending, number);
+                self.ready.extend(out);
+            }
+        }
+        if self.threaded() {
+            self.fall_back(true);
+        }
+        let ready = std::mem::take(&mut self.ready);
+        let stage = match std::mem::replace(&mut self.runner, Runner::Changing) {
+            Runner::Inline(stage) => *stage,
+            _ => (self.make)(),
+        };
+        (ready, stage, std::mem::take(&mut self.deaths))
+    }
+
+    /// The thread has ended (`expected`: at the end of the run, else on its own): joins it
+    /// and runs the stage inline from now on — the thread's own if it ended cleanly, a new one
+    /// if it panicked — starting with the jobs it had not answered. A thread that ended on its
+    /// own or panicked leaves a warning.
+    fn fall_back(&mut self, expected: bool) {
+        let Runner::Thread { handle, .. } = std::mem::replace(&mut self.runner, Runner::Changing)
+        else {
+            return;
+        };
+        let stage = match handle.join() {
+            Ok(stage) => {
+                if !expected || !self.pending.is_empty() {
+                    self.deaths.push(format!(
+                        "the {} thread ended before the run did, {} jobs unanswered: they ran \
+                         in the tracking thread, as did every job after",
+                        self.name,
+                        self.pending.len()
+                    ));
+                }
+                stage
+            }
+            Err(panic) => {
+                let why = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "no message".into());
+                self.deaths.push(format!(
+                    "the {} thread panicked ({why}): its work ran in the tracking thread from \
+                     then on, its {} unanswered jobs first",
+                    self.name,
+                    self.pending.len()
+                ));
+                (self.make)()
+            }
+        };
+        self.runner = Runner::Inline(Box::new(stage));
+        for (_, job) in std::mem::take(&mut self.pending) {
+            self.run_inline(&job);
+        }
+    }
+}
+
+impl<S: Stage<N>, const N: usize> Drop for Worker<S, N> {
+    fn drop(&mut self) {
+        // A worker dropped without `finish` (the system dropped mid-run): let its thread end.
+        if let Runner::Thread { jobs, .. } = &mut self.runner {
+            let (closed, _) = sync_channel(1);
+            drop(std::mem::replace(jobs, closed));
+        }
+    }
+}
+
+/// Job `number` was answered: it and the jobs before it are no longer pending.
+fn answered<J>(pending: &mut VecDeque<Numbered<J>>, number: u64) {
+    while pending.front().is_some_and(|(n, _)| *n <= number) {
+        pending.pop_front();
+    }
+}
+
+fn spawn<S: Stage<N>, const N: usize>(
+    name: &'static str,
+    graph: Arc<SharedGraph<N>>,
+    mut stage: S,
+    queue: usize,
+    fault: Option<Fault>,
+) -> Runner<S, N> {
+    let (jobs, inbox) = sync_channel::<Numbered<S::Job>>(queue.max(1));
+    let (outbox, outputs) = sync_channel::<Numbered<Vec<S::Output>>>(queue.max(1) + 64);
+    let handle = std::thread::Builder::new()
+        .name(name.into())
+        .spawn(move || {
+            let mut answered = 0;
+            while let Ok((number, job)) = inbox.recv() {
+                match fault {
+                    Some(Fault::Panic { after }) if answered == after => {
+                        panic!("a fault injected after {after} jobs")
+                    }
+                    Some(Fault::Disconnect { after }) if answered == after => break,
+                    _ => {}
+                }
+                let mut out = Vec::new();
+                stage.run(&graph, &job, &mut out);
+                answered += 1;
+                if outbox.send((number, out)).is_err() {
+                    break;
+                }
+            }
+            stage
+        })
+        .expect("a thread can be spawned");
+    Runner::Thread {
+        jobs,
+        outputs,
+        handle,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Adds its jobs up; a job of 0 outputs nothing.
+    struct Sum(u64);
+
+    impl Stage<3> for Sum {
+        type Job = u64;
+        type Output = u64;
+        fn run(&mut self, _: &SharedGraph<3>, job: &u64, out: &mut Vec<u64>) {
+            self.0 += job;
+            if *job > 0 {
+                out.push(self.0);
+            }
+        }
+    }
+
+    /// A worker with room in its queue for every job of the tests (a thread that panics may
+    /// take milliseconds to end while jobs arrive).
+    fn worker(threaded: bool, fault: Option<Fault>) -> Worker<Sum, 3> {
+        Worker::new(
+            "sum",
+            Arc::new(SharedGraph::default()),
+            Sum(0),
+            Box::new(|| Sum(1000)),
+            threaded,
+            16,
+            false,
+            fault,
+        )
+    }
+
+    fn run(mut w: Worker<Sum, 3>, jobs: u64) -> (Vec<u64>, u64, Vec<String>) {
+        let mut out = Vec::new();
+        for j in 1..=jobs {
+            w.submit(j);
+            if w.threaded() {
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+            out.extend(w.poll());
+        }
+        let (last, stage, deaths) = w.finish();
+        out.extend(last);
+        (out, stage.0, deaths)
+    }
+
+    #[test]
+    fn a_worker_gives_the_same_outputs_in_its_thread_and_inline() {
+        let (inline, sum, deaths) = run(worker(false, None), 10);
+        assert_eq!(inline, vec![1, 3, 6, 10, 15, 21, 28, 36, 45, 55]);
+        assert_eq!((sum, deaths.len()), (55, 0));
+        let (threaded, sum, deaths) = run(worker(true, None), 10);
+        assert_eq!((threaded, sum, deaths.len()), (inline, 55, 0));
+    }
+
+    #[test]
+    fn a_worker_that_panics_falls_back_inline_with_every_job_answered() {
+        let (out, sum, deaths) = run(worker(true, Some(Fault::Panic { after: 3 })), 10);
+        // Jobs 1–3 in the thread; the stage died with them, the new one starts at 1000 and
+        // answers jobs 4–10.
+        assert_eq!(out.len(), 10, "{out:?}");
+        assert_eq!(&out[..3], &[1, 3, 6]);
+        assert_eq!(sum, 1000 + (4..=10).sum::<u64>());
+        assert_eq!(deaths.len(), 1);
+        assert!(deaths[0].contains("panicked"), "{deaths:?}");
+    }
+
+    #[test]
+    fn a_worker_whose_thread_ends_falls_back_inline_with_its_own_stage() {
+        let (out, sum, deaths) = run(worker(true, Some(Fault::Disconnect { after: 2 })), 10);
+        assert_eq!(out.len(), 10, "{out:?}");
+        // The thread's stage came back with it: the sums go on from job 2's.
+        assert_eq!(sum, 55);
+        assert_eq!(out, vec![1, 3, 6, 10, 15, 21, 28, 36, 45, 55]);
+        assert_eq!(deaths.len(), 1, "{deaths:?}");
+        assert!(deaths[0].contains("ended before the run did"), "{deaths:?}");
+    }
+}

@@ -1,0 +1,376 @@
+//! The one live system (thesis §6.5.2) for every sensor: frames in, every frame's pose and the
+//! map out.
+//!
+//! A [`Session`] owns, once for every sensor, what a run is made of beside the sensor's
+//! front-end: the shared graph (every map of the run in one [`SlamGraph`]), the keyframes'
+//! images, the back-end's workers (double window optimisation and loop closure, in threads or
+//! inline: [`backend`]), the frames' poses and states ([`log`]), what happens when the camera
+//! is lost — relocalisation, and after `tracker.new_map_after` seconds a new map — and the
+//! outputs ([`outputs`]). A sensor plugs in through the [`Sensor`] trait: the stereo and
+//! RGB-D front-end ([`crate::depth`]) and the monocular one ([`crate::mono`]). [`System`]
+//! is the one public type over both.
+//!
+//! Per frame: the sensor prepares and tracks it ([`Sensor::track`]; a keyframe goes through
+//! the keyframe pipeline and is handed to the back-end there); a frame the sensor lost is
+//! looked for in the map ([`Sensor::relocalise`]); a camera lost for `tracker.new_map_after`
+//! seconds (or one nothing can find again, [`Sensor::can_recover`]) starts a new map
+//! ([`Sensor::start_map`]); the back-end's outputs are collected; the frame is recorded.
+
+pub(crate) mod backend;
+pub(crate) mod log;
+pub(crate) mod outputs;
+pub(crate) mod sensor;
+
+pub(crate) use sensor::{
+    Backend, Context, Finished, Found, LoopOutput, Optimise, Optimised, Sensor, Step, StepState,
+};
+
+use crate::config::SystemConfig;
+use crate::keyframes::KeyframeStore;
+use crate::result::{
+    FrameReport, LoopEvent, Progress, RefusedLoop, Relocalisation, RunResult, SystemError,
+};
+use data::output::{RunRecord, StageTimings};
+use slam::dwo::DwoStats;
+use slam::map::SharedGraph;
+use slam::map::shared::{read_lock, record_lock_waits, take_lock_waits};
+use std::sync::{Arc, RwLock};
+use std::time::{Duration, Instant};
+
+/// The one live system, generic in its sensor (see the [module docs](self)).
+pub(crate) struct Session<S: Sensor<N>, const N: usize> {
+    config: SystemConfig,
+    graph: Arc<SharedGraph<N>>,
+    store: Arc<RwLock<KeyframeStore>>,
+    sensor: S,
+    backend: Backend<S::Loops, S::Camera, N>,
+    log: log::FrameLog,
+    /// The timestamp of the first of the lost frames up to now (`None` while tracked).
+    lost_since: Option<f64>,
+    /// The maps started after a loss: `(frame, seconds lost before it, map)`.
+    new_maps: Vec<(usize, f64, usize)>,
+    relocalisations: Vec<Relocalisation>,
+    loops: Vec<LoopEvent>,
+    refused: Vec<RefusedLoop>,
+    optimisations: Vec<DwoStats>,
+    warnings: Vec<String>,
+    /// The loop closer's stage times (threaded: measured in its thread).
+    loop_timings: StageTimings,
+    /// How long the tracking thread waited for the locks it shares.
+    lock_waits: LockWaitLog,
+    /// Keyframes the loop closer's queue had no room for.
+    loop_queue_full: usize,
+}
+
+/// The tracking thread's lock waits over a run (`slam::map::shared::record_lock_waits`).
+#[derive(Default)]
+pub(crate) struct LockWaitLog {
+    /// Each lock's wait, nanoseconds.
+    waits: Vec<u32>,
+    /// Frames whose locks waited more than a millisecond together.
+    frames_over_1ms: usize,
+}
+
+impl LockWaitLog {
+    /// The waits of one frame.
+    fn frame(&mut self, waits: Vec<Duration>) {
+        let total: Duration = waits.iter().sum();
+        if total > Duration::from_millis(1) {
+            self.frames_over_1ms += 1;
+        }
+        self.waits.extend(
+            waits
+                .into_iter()
+                .map(|w| u32::try_from(w.as_nanos()).unwrap_or(u32::MAX)),
+        );
+    }
+
+    /// Median, 99th percentile and longest wait.
+    pub fn summary(&self) -> crate::result::LockWaits {
+        let mut sorted = self.waits.clone();
+        sorted.sort_unstable();
+        let at = |q: f64| {
+            let i = ((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len().max(1)) - 1;
+            Duration::from_nanos(sorted.get(i).copied().unwrap_or(0).into())
+        };
+        crate::result::LockWaits {
+            count: sorted.len(),
+            median: at(0.5),
+            p99: at(0.99),
+            max: Duration::from_nanos(sorted.last().copied().unwrap_or(0).into()),
+            frames_over_1ms: self.frames_over_1ms,
+        }
+    }
+}
+
+impl<S: Sensor<N>, const N: usize> Session<S, N> {
+    /// A session of `sensor` on `graph` (shared with the sensor's stages) with `backend`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        config: SystemConfig,
+        graph: Arc<SharedGraph<N>>,
+        store: Arc<RwLock<KeyframeStore>>,
+        sensor: S,
+        backend: Backend<S::Loops, S::Camera, N>,
+        record: RunRecord,
+    ) -> Self {
+        Session {
+            config,
+            graph,
+            store,
+            sensor,
+            backend,
+            log: log::FrameLog {
+                record,
+                ..Default::default()
+            },
+            lost_since: None,
+            new_maps: Vec::new(),
+            relocalisations: Vec::new(),
+            loops: Vec::new(),
+            refused: Vec::new(),
+            optimisations: Vec::new(),
+            warnings: Vec::new(),
+            loop_timings: StageTimings::default(),
+            lock_waits: LockWaitLog::default(),
+            loop_queue_full: 0,
+        }
+    }
+
+    /// The sensor, and what it reads and writes of the session.
+    fn split(&mut self) -> (&mut S, Context<'_, S::Loops, S::Camera, N>) {
+        (
+            &mut self.sensor,
+            Context {
+                config: &self.config,
+                graph: &self.graph,
+                store: &self.store,
+                timings: &mut self.log.record.timings,
+                backend: &mut self.backend,
+                loops: &mut self.loops,
+                warnings: &mut self.warnings,
+            },
+        )
+    }
+
+    /// Processes one frame (see the [module docs](self)).
+    pub fn process(&mut self, frame: data::sequence::Frame) -> Result<FrameReport, SystemError> {
+        let start = Instant::now();
+        // Every lock this thread takes for the frame is timed (the tracking thread never waits
+        // long for the others: thesis §6.5.2).
+        record_lock_waits(true);
+        take_lock_waits();
+        let (index, timestamp) = (frame.index, frame.timestamp);
+        let (sensor, mut ctx) = self.split();
+        let frame = sensor.prepare(&mut ctx, frame)?;
+        let step = sensor.track(&mut ctx, &frame)?;
+        let step = self.recover(&frame, index, timestamp, step)?;
+        self.collect_backend();
+        let report = FrameReport {
+            index,
+            state: step.tracking_state(),
+            keyframe: step.keyframe.clone(),
+            stats: step.stats.clone(),
+            time: start.elapsed(),
+            time_tracking: step.time_tracking,
+        };
+        self.log
+            .record
+            .timings
+            .record("track: total", step.time_tracking);
+        let anchor = step.anchor.filter(|_| step.tracked());
+        let pose = step.camera_from_world.filter(|_| step.tracked());
+        if let Some((frame, keyframe)) = step.earlier_keyframe {
+            self.log.anchor_earlier(frame, keyframe);
+        }
+        let report = {
+            let graph = self.graph.read();
+            self.log.push(&graph, timestamp, pose, anchor, report)
+        };
+        self.lock_waits.frame(take_lock_waits());
+        Ok(report)
+    }
+
+    /// A frame the sensor did not track: looked for in the map by appearance; if not found
+    /// and lost for `tracker.new_map_after` seconds (or unrecoverable), a new map.
+    fn recover(
+        &mut self,
+        frame: &S::Frame,
+        index: usize,
+        timestamp: f64,
+        mut step: Step,
+    ) -> Result<Step, SystemError> {
+        match &step.state {
+            StepState::Good | StepState::Weak(_) => {
+                self.lost_since = None;
+                return Ok(step);
+            }
+            StepState::Initialising(_) => return Ok(step),
+            StepState::Waiting(_) | StepState::Lost(_) => {}
+        }
+        let t = Instant::now();
+        let (sensor, mut ctx) = self.split();
+        let found = sensor.relocalise(&mut ctx, frame)?;
+        ctx.timings.record("track: relocalise", t.elapsed());
+        step.time_tracking += t.elapsed();
+        match found {
+            Found::Place(found) => {
+                let elapsed = step.time_tracking;
+                step = Step {
+                    time_tracking: elapsed + found.time_tracking,
+                    ..*found
+                };
+                if let Some(r) = step.relocalised.clone() {
+                    self.relocalisations.push(r);
+                }
+                if step.tracked() {
+                    self.lost_since = None;
+                    return Ok(step);
+                }
+            }
+            Found::Nothing(why) => {
+                let add = |reason: &mut String| {
+                    if !why.is_empty() {
+                        reason.push_str(&format!("; relocalisation: {why}"));
+                    }
+                };
+                match &mut step.state {
+                    StepState::Waiting(reason) => {
+                        add(reason);
+                        return Ok(step);
+                    }
+                    StepState::Lost(reason) => add(reason),
+                    _ => {}
+                }
+            }
+        }
+        let since = *self.lost_since.get_or_insert(timestamp);
+        let lost_for = timestamp - since;
+        if lost_for >= self.config.tracker.new_map_after || !self.sensor.can_recover() {
+            let t = Instant::now();
+            let before = self.graph.read().current_map();
+            let (sensor, mut ctx) = self.split();
+            if let Some(started) = sensor.start_map(&mut ctx, frame, lost_for)? {
+                let map = self.graph.read().current_map();
+                if map != before {
+                    self.new_maps.push((index, lost_for, map));
+                }
+                self.lost_since = None;
+                return Ok(Step {
+                    time_tracking: step.time_tracking + t.elapsed(),
+                    ..started
+                });
+            }
+        }
+        Ok(step)
+    }
+
+    /// The back-end's outputs so far, into the run's record (and the sensor's).
+    fn collect_backend(&mut self) {
+        if let Some(optimiser) = &mut self.backend.optimiser {
+            let threaded = optimiser.threaded();
+            let outputs = optimiser.poll();
+            self.take_optimised(outputs, threaded);
+        }
+        if let Some(loops) = &mut self.backend.loops {
+            let outputs = loops.poll();
+            self.take_loop_outputs(outputs);
+        }
+    }
+
+    fn take_optimised(&mut self, outputs: Vec<Optimised>, threaded: bool) {
+        for out in outputs {
+            match out {
+                Optimised::Stats(s) => {
+                    // Inline, the optimisation is a stage of the tracking thread's time.
+                    if !threaded {
+                        self.log
+                            .record
+                            .timings
+                            .record("optimise: double window", s.total());
+                    }
+                    self.optimisations.push(s);
+                }
+                Optimised::Failed(e) => self.warnings.push(e),
+            }
+        }
+    }
+
+    fn take_loop_outputs(&mut self, outputs: Vec<LoopOutput<S::LoopData>>) {
+        for out in outputs {
+            match out {
+                LoopOutput::Loop(event) => self.loops.push(event),
+                LoopOutput::Refused(r) => self.refused.push(r),
+                LoopOutput::Warning(w) => self.warnings.push(w),
+                LoopOutput::Timing(stage, d) => self.loop_timings.record(stage, d),
+                LoopOutput::Sensor(data) => {
+                    let (sensor, mut ctx) = self.split();
+                    sensor.loop_data(&mut ctx, data);
+                }
+            }
+        }
+    }
+
+    /// Records a frame that could not be read.
+    pub fn skip_frame(&mut self, index: usize, timestamp: f64, reason: String) {
+        self.log.skip(index, timestamp, reason);
+    }
+
+    /// The record so far.
+    pub fn record(&self) -> &RunRecord {
+        &self.log.record
+    }
+
+    /// Records a stage's time measured outside.
+    pub fn record_timing(&mut self, stage: &str, d: Duration) {
+        self.log.record.timings.record(stage, d);
+    }
+
+    /// The map's size and the loops so far.
+    pub fn progress(&self) -> Progress {
+        Progress {
+            points: self.graph.read().num_points(),
+            loops: self.loops.len(),
+        }
+    }
+
+    /// Ends the run: the back-end's workers finish their queues, the sensor's final
+    /// optimisation runs, and the outputs are collected ([`outputs`]).
+    pub fn finish(mut self, interrupted: bool) -> Result<RunResult, SystemError> {
+        self.stop_backend();
+        let (sensor, mut ctx) = self.split();
+        let finished = sensor.finish(&mut ctx, interrupted)?;
+        self.log.record.interrupted = interrupted;
+        self.log.record.timings.extend(&self.loop_timings);
+        let ended = outputs::Ended {
+            store: read_lock(&self.store).clone(),
+            log: self.log,
+            new_maps: self.new_maps,
+            relocalisations: self.relocalisations,
+            loops: self.loops,
+            refused: self.refused,
+            optimisations: self.optimisations,
+            warnings: self.warnings,
+            loop_queue_full: (self.loop_queue_full, self.config.loops.queue),
+            lock_waits: self.lock_waits.summary(),
+        };
+        Ok(outputs::assemble(ended, finished, S::run_graph))
+    }
+
+    /// Stops the workers (the loop closer first: it may still wake the optimiser), collecting
+    /// what they still give and what became of them.
+    fn stop_backend(&mut self) {
+        if let Some(loops) = self.backend.loops.take() {
+            self.loop_queue_full = loops.queue_full;
+            let (outputs, _, deaths) = loops.finish();
+            self.warnings.extend(deaths);
+            self.take_loop_outputs(outputs);
+        }
+        if let Some(optimiser) = self.backend.optimiser.take() {
+            let threaded = optimiser.threaded();
+            let (outputs, _, deaths) = optimiser.finish();
+            self.warnings.extend(deaths);
+            self.take_optimised(outputs, threaded);
+        }
+    }
+}
