@@ -19,8 +19,9 @@ Declaring a child (`mod child;`) is not using it, and neither is re-exporting it
 `pub use`, `pub(crate) use` ... is the module's interface): such a `use` is an edge only if
 the file's own code names what it brings in (`pub use matcher::StereoMatcher;` and
 `StereoMatcher::new(...)` in the same file). Comments, string literals and `#[cfg(test)]` items
-(test modules) are left out. Not seen: macro invocations (`macro_rules!` scope by text) and
-items reached through a method or a trait without a path naming them."""
+(test modules) are left out. Not seen: macro invocations (`macro_rules!` scope by text), items
+reached through a method or a trait without a path naming them, and what a file's code uses of
+its own glob re-export (`pub use child::*`)."""
 import bisect
 import os
 import re
