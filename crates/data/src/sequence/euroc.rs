@@ -7,9 +7,8 @@
 //! ground-truth sensor's own `T_BS`); the left camera's is `world_from_body · T_BS(cam0)`, and
 //! the reader rotates it into the rectified left camera.
 
-use super::{
-    FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened, calibration_or, lists, ordered,
-};
+use super::types::{FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened};
+use super::{calibration_or, lists, ordered};
 use crate::camera::{Calibration, CameraIntrinsics, SensorKind};
 use crate::camera_file::CameraFile;
 use crate::error::DataError;

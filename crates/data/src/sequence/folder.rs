@@ -11,7 +11,8 @@
 //! seconds, or nanoseconds from 1e15 on, as ROS and EuRoC exports name them); else frame
 //! `i / fps` with `fps` from the camera file; else `i` seconds (with a warning).
 
-use super::{FrameFiles, FrameSpec, OpenOptions, Opened, image_has_colour, image_size};
+use super::types::{FrameFiles, FrameSpec, OpenOptions, Opened};
+use super::{image_has_colour, image_size};
 use crate::camera::SensorKind;
 use crate::camera_file::{CameraFile, read_camera_file};
 use crate::error::{DataError, ParseErrorKind};

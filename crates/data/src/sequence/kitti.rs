@@ -4,9 +4,8 @@
 //! ground truth `poses.txt` in the folder (or `../../poses/<name>.txt` of the official tree):
 //! line `i` is `world_from_camera` of the left camera at frame `i`.
 
-use super::{
-    FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened, calibration_or, image_size, lists,
-};
+use super::types::{FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened};
+use super::{calibration_or, image_size, lists};
 use crate::camera::{Calibration, CameraIntrinsics, SensorKind};
 use crate::camera_file::CameraFile;
 use crate::error::{DataError, ParseErrorKind};

@@ -6,10 +6,8 @@
 //! are delivered with `depth: None` (7-Scenes ships depth for even frames only). Without a
 //! `depth.txt` the sequence is monocular.
 
-use super::{
-    BadFramePolicy, FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened, calibration_or,
-    image_has_colour, image_size, lists, ordered,
-};
+use super::types::{BadFramePolicy, FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened};
+use super::{calibration_or, image_has_colour, image_size, lists, ordered};
 use crate::camera::{
     Calibration, CameraIntrinsics, DEFAULT_VIRTUAL_BASELINE, DepthCalibration, LensDistortion,
     SensorKind,
