@@ -18,6 +18,7 @@
 //! `raw_images` in [`OpenOptions`] keeps them as stored. Ground truth is given per frame as
 //! `world_from_camera` of the delivered (rectified left / colour) camera.
 
+mod common;
 mod decode;
 mod euroc;
 mod folder;
@@ -36,10 +37,10 @@ pub use types::{
     OpenOptions, RgbPlanes, SequenceFormat, SequenceInfo,
 };
 
-use crate::camera::Calibration;
-use crate::camera_file::{CameraFile, read_camera_file};
+use crate::camera_file::read_camera_file;
 use crate::error::{DataError, ParseErrorKind};
 use crate::trajectory::Trajectory;
+use common::expected;
 use decode::Decoder;
 use lie::{LieGroup, Se3, So3};
 use std::path::{Path, PathBuf};
@@ -112,16 +113,6 @@ pub fn detect_format(root: &Path) -> Result<SequenceFormat, DataError> {
             found: shown,
         },
     })
-}
-
-fn expected(path: &Path, expected: impl Into<String>, found: impl Into<String>) -> DataError {
-    DataError::File {
-        path: path.to_path_buf(),
-        kind: ParseErrorKind::Expected {
-            expected: expected.into(),
-            found: found.into(),
-        },
-    }
 }
 
 impl Sequence {
@@ -293,67 +284,4 @@ pub fn interpolate(trajectory: &Trajectory, t: f64, max_gap: f64) -> Option<Se3>
     let rotation = a.rotation().compose(&So3::exp(&(delta * s)));
     let translation = a.translation() * (1.0 - s) + b.translation() * s;
     Some(Se3::new(rotation, translation))
-}
-
-/// The calibration override, or the dataset's own.
-pub(crate) fn calibration_or(
-    override_: Option<(&Path, &CameraFile)>,
-    kind: crate::camera::SensorKind,
-    size: (usize, usize),
-    own: impl FnOnce() -> Result<Calibration, DataError>,
-) -> Result<Calibration, DataError> {
-    match override_ {
-        Some((path, file)) => file.calibration(kind, size, path),
-        None => own(),
-    }
-}
-
-/// `(width, height)` of an image file from its header (no decoding), naming the file.
-pub(crate) fn image_size(path: &Path) -> Result<(usize, usize), DataError> {
-    let r = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
-        .map_err(|source| DataError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    let (w, h) = r.into_dimensions().map_err(|e| {
-        expected(
-            path,
-            "an image (PNG, JPEG, PNM)",
-            format!("undecodable: {e}"),
-        )
-    })?;
-    Ok((w as usize, h as usize))
-}
-
-/// `true` if the image file has colour channels (from its header).
-pub(crate) fn image_has_colour(path: &Path) -> bool {
-    use image::ImageDecoder;
-    image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
-        .ok()
-        .and_then(|r| r.into_decoder().ok())
-        .is_some_and(|d| d.color_type().has_color())
-}
-
-/// Drops entries out of time order under [`BadFramePolicy::Skip`] (with a warning) or fails
-/// under [`BadFramePolicy::Stop`].
-pub(crate) fn ordered(
-    mut entries: Vec<lists::ListEntry>,
-    path: &Path,
-    policy: BadFramePolicy,
-    warnings: &mut Vec<String>,
-) -> Result<Vec<lists::ListEntry>, DataError> {
-    loop {
-        match lists::check_increasing(&entries, path) {
-            Ok(()) => return Ok(entries),
-            Err((k, e)) => match policy {
-                BadFramePolicy::Stop => return Err(e),
-                BadFramePolicy::Skip => {
-                    warnings.push(format!("skipped: {e}"));
-                    entries.remove(k);
-                }
-            },
-        }
-    }
 }
