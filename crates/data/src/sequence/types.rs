@@ -103,7 +103,8 @@ pub struct OpenOptions {
 pub struct DepthImage {
     /// Raw values as stored.
     pub raw: Image<u16>,
-    /// Metres per raw unit (see [`DepthCalibration::metres_per_unit`]).
+    /// Metres per raw unit (see
+    /// [`DepthCalibration::metres_per_unit`](crate::camera::DepthCalibration::metres_per_unit)).
     pub metres_per_unit: f64,
     /// Raw values `≥` this are invalid, as is 0.
     pub max_valid_raw: u16,
