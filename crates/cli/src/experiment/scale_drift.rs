@@ -4,7 +4,7 @@
 //! CBH Jacobians (Fig. 5.4). The computations live in [`sim::scale_drift`]; this module runs
 //! them with progress bars and writes CSV files, PNG plots and `summary.json`.
 
-use super::progress;
+use super::common::{progress, read_summary};
 use crate::plot::{self, Figure, GREY, PALETTE, Series, Style};
 use anyhow::{Context, Result, bail};
 use lie::Se3;
@@ -78,7 +78,7 @@ pub fn run(args: ScaleDriftArgs) -> Result<()> {
     }
     crate::args::output_dir(&args.out, "--out")?;
     let summary_path = args.out.join("summary.json");
-    let mut summary = super::read_summary(&summary_path)?;
+    let mut summary = read_summary(&summary_path)?;
     let settings = RunSettings {
         full_ba: args.full_ba,
         ..RunSettings::default()

@@ -1,7 +1,7 @@
 //! Decoding one frame: image files → checked, undistorted / rectified images.
 
 use super::rectify::{Remap, StereoRectifier};
-use super::{
+use super::types::{
     DepthImage, Frame, FrameError, FrameErrorKind, FrameFiles, FrameImages, FrameSpec, RgbPlanes,
 };
 use crate::camera::{Calibration, DepthCalibration, SensorModel};

@@ -7,9 +7,9 @@
 //! ground-truth sensor's own `T_BS`); the left camera's is `world_from_body · T_BS(cam0)`, and
 //! the reader rotates it into the rectified left camera.
 
-use super::{
-    FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened, calibration_or, lists, ordered,
-};
+use super::common::{calibration_or, check_sorted, ordered};
+use super::lists;
+use super::types::{FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened};
 use crate::camera::{Calibration, CameraIntrinsics, SensorKind};
 use crate::camera_file::CameraFile;
 use crate::error::DataError;
@@ -120,7 +120,7 @@ pub(crate) fn open(
     let gt_path = gt_dir.join("data.csv");
     let ground_truth = if gt_path.is_file() {
         let mut t = read_euroc_groundtruth(&gt_path)?;
-        super::tum::check_sorted(&t, &gt_path)?;
+        check_sorted(&t, &gt_path)?;
         let sensor_yaml = gt_dir.join("sensor.yaml");
         let body_from_gt = if sensor_yaml.is_file() {
             lists::parse_euroc_body_from_sensor(&read_to_string(&sensor_yaml)?, &sensor_yaml)?

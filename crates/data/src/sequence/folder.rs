@@ -11,22 +11,13 @@
 //! seconds, or nanoseconds from 1e15 on, as ROS and EuRoC exports name them); else frame
 //! `i / fps` with `fps` from the camera file; else `i` seconds (with a warning).
 
-use super::{FrameFiles, FrameSpec, OpenOptions, Opened, image_has_colour, image_size};
+use super::common::{image_has_colour, image_size, list_images, stem_time};
+use super::types::{FrameFiles, FrameSpec, OpenOptions, Opened};
 use crate::camera::SensorKind;
 use crate::camera_file::{CameraFile, read_camera_file};
 use crate::error::{DataError, ParseErrorKind};
 use crate::trajectory::{associate_unique, read_timestamps};
 use std::path::{Path, PathBuf};
-
-/// Image file extensions read.
-const IMAGE_EXTENSIONS: [&str; 6] = ["png", "jpg", "jpeg", "pgm", "ppm", "pnm"];
-
-pub(crate) fn is_image(p: &Path) -> bool {
-    p.is_file()
-        && p.extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
-}
 
 /// The folder's camera file, if it has one.
 pub(crate) fn camera_file_in(root: &Path) -> Option<PathBuf> {
@@ -45,44 +36,6 @@ pub(crate) fn camera_file_in(root: &Path) -> Option<PathBuf> {
         })
         .collect();
     (yamls.len() == 1).then(|| yamls[0].clone())
-}
-
-/// Seconds encoded in a file stem, if it is a time (see the module docs).
-fn stem_time(p: &Path) -> Option<f64> {
-    let v: f64 = p.file_stem()?.to_str()?.parse().ok()?;
-    if !v.is_finite() || v < 1e9 {
-        return None;
-    }
-    Some(if v >= 1e15 { v / 1e9 } else { v })
-}
-
-pub(crate) fn list_images(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|source| DataError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| is_image(p))
-        .collect();
-    if v.iter().all(|p| stem_time(p).is_some()) {
-        v.sort_by(|a, b| {
-            stem_time(a)
-                .unwrap_or(0.0)
-                .total_cmp(&stem_time(b).unwrap_or(0.0))
-        });
-    } else {
-        v.sort();
-    }
-    if v.is_empty() {
-        return Err(DataError::File {
-            path: dir.to_path_buf(),
-            kind: ParseErrorKind::Empty {
-                expected: "image files (.png, .jpg, .pgm, .ppm)".into(),
-            },
-        });
-    }
-    Ok(v)
 }
 
 pub(crate) fn open(

@@ -4,9 +4,9 @@
 //! ground truth `poses.txt` in the folder (or `../../poses/<name>.txt` of the official tree):
 //! line `i` is `world_from_camera` of the left camera at frame `i`.
 
-use super::{
-    FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened, calibration_or, image_size, lists,
-};
+use super::common::{calibration_or, image_size, list_images};
+use super::lists;
+use super::types::{FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened};
 use crate::camera::{Calibration, CameraIntrinsics, SensorKind};
 use crate::camera_file::CameraFile;
 use crate::error::{DataError, ParseErrorKind};
@@ -41,7 +41,7 @@ pub(crate) fn open(
         },
     })?;
     let mut warnings = Vec::new();
-    let left = super::folder::list_images(&left_dir)?;
+    let left = list_images(&left_dir)?;
     let size = image_size(&left[0])?;
     let calib_path = root.join("calib.txt");
     let kind = if right_dir.is_some() {

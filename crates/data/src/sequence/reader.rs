@@ -3,7 +3,7 @@
 //! full, no dependency needed), so that reading never stalls tracking and memory stays bounded.
 
 use super::decode::Decoder;
-use super::{BadFramePolicy, Frame, FrameError, FrameSpec, SequenceInfo};
+use super::types::{BadFramePolicy, Frame, FrameError, FrameSpec, SequenceInfo};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};

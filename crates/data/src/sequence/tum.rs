@@ -6,10 +6,9 @@
 //! are delivered with `depth: None` (7-Scenes ships depth for even frames only). Without a
 //! `depth.txt` the sequence is monocular.
 
-use super::{
-    BadFramePolicy, FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened, calibration_or,
-    image_has_colour, image_size, lists, ordered,
-};
+use super::common::{calibration_or, check_sorted, image_has_colour, image_size, ordered};
+use super::lists;
+use super::types::{BadFramePolicy, FrameFiles, FrameSpec, GroundTruth, OpenOptions, Opened};
 use crate::camera::{
     Calibration, CameraIntrinsics, DEFAULT_VIRTUAL_BASELINE, DepthCalibration, LensDistortion,
     SensorKind,
@@ -17,7 +16,7 @@ use crate::camera::{
 use crate::camera_file::{CameraFile, read_camera_file};
 use crate::error::{DataError, ParseErrorKind};
 use crate::text::read_to_string;
-use crate::trajectory::{Trajectory, associate_unique, read_tum};
+use crate::trajectory::{associate_unique, read_tum};
 use geom::{PinholeCamera, RadTan};
 use std::path::Path;
 
@@ -84,25 +83,6 @@ pub(crate) fn camera_from_name(root: &Path) -> Option<TumCamera> {
             "fr3" | "freiburg3" => Some(TumCamera::Freiburg3),
             _ => None,
         })
-}
-
-pub(crate) fn check_sorted(t: &Trajectory, path: &Path) -> Result<(), DataError> {
-    for k in 1..t.timestamps.len() {
-        if t.timestamps[k] <= t.timestamps[k - 1] {
-            return Err(DataError::File {
-                path: path.to_path_buf(),
-                kind: ParseErrorKind::Expected {
-                    expected: format!(
-                        "increasing timestamps (pose {} at {} s)",
-                        k - 1,
-                        t.timestamps[k - 1]
-                    ),
-                    found: format!("pose {k} at {} s", t.timestamps[k]),
-                },
-            });
-        }
-    }
-    Ok(())
 }
 
 pub(crate) fn open(

@@ -19,6 +19,7 @@
 
 pub mod cache;
 pub mod camera;
+mod error;
 pub mod paths;
 pub mod procedural;
 pub mod quality;
@@ -30,6 +31,7 @@ pub mod texture;
 pub mod worlds;
 
 pub use camera::RenderCamera;
+pub use error::RenderError;
 pub use raycast::{Pixel, ViewOptions};
 pub use scene::Scene;
 pub use sensor::{FrameImages, SensorKind, SensorModel};
@@ -38,22 +40,6 @@ pub use sequence::{DEFAULT_REVISIT_JITTER, Frame, SceneKind, Sequence, SequenceC
 use cache::TextureCache;
 use camera::RayTable;
 use lie::Se3;
-
-/// Errors of the renderer.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum RenderError {
-    /// The camera cannot be rendered (size, intrinsics, distortion).
-    #[error("invalid render camera: {0}")]
-    InvalidCamera(String),
-    /// A sensor or sequence parameter is out of its range.
-    #[error("invalid parameter {name}: {reason}")]
-    InvalidParameter {
-        /// The parameter.
-        name: &'static str,
-        /// What was expected.
-        reason: String,
-    },
-}
 
 /// Default size of the texture-tile cache (bytes): enough for every tile a 640×480 view of any
 /// of the worlds touches several times over, small beside a machine's memory.

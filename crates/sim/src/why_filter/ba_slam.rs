@@ -11,39 +11,15 @@
 
 use super::features::{FrameMeasurements, ImageArea, find, select_replacements, split_lost};
 use super::filter::InverseDepthCamera;
+use super::motion::motion_only;
 use lie::{LieGroup, Se3};
 use nalgebra::{SVector, Vector2, Vector3};
 use slam::ba::{BaMode, BundleAdjustment, Gauge, Observation};
 use slam::clock::CpuStopwatch;
-use slam::factors::{AnchorObservation, AnchoredObservation, Projector, inverse_depth_to_point};
-use slam::tracking::{MotionOnlyOptions, TrackingError, motion_only_ba};
+use slam::factors::{AnchorObservation, AnchoredObservation, inverse_depth_to_point};
+use slam::tracking::TrackingError;
 use std::collections::{HashMap, HashSet};
 use std::time::Duration;
-
-/// Motion-only BA of one pose against fixed world points (eq. 4.15) as the study runs it: least
-/// squares (no robust kernel: the study's data association is perfect), `iterations` LM
-/// iterations from `initial`. A keyframe that measures no map point keeps `initial` (the
-/// prediction is all there is); any other failure is an error.
-pub fn motion_only<P: Projector<N> + Clone, const N: usize>(
-    projector: &P,
-    initial: &Se3,
-    points_world: &[Vector3<f64>],
-    measurements: &[SVector<f64, N>],
-    sigma: f64,
-    iterations: usize,
-) -> Result<Se3, TrackingError> {
-    if measurements.is_empty() {
-        return Ok(*initial);
-    }
-    let options = MotionOnlyOptions {
-        sigma,
-        kernel: None,
-        iterations,
-        min_matches: 1,
-    };
-    motion_only_ba(projector, initial, points_world, measurements, &options)
-        .map(|fit| fit.camera_from_world)
-}
 
 /// `lsq`'s default Levenberg-Marquardt limited to `iterations` linear solves.
 fn solver_options(iterations: usize) -> lsq::SolverOptions {

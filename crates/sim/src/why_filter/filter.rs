@@ -25,7 +25,7 @@
 //!
 //! The cost is cubic in the number of points: every step factorises the dense `Λ`.
 
-use super::ba_slam::motion_only;
+use super::motion::motion_only;
 use lie::{LieGroup, Se3};
 use lsq::dense::{SpdFactor, cholesky_solve_in_place, marginalise, spd_inverse};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector3, Vector6};

@@ -48,6 +48,7 @@ pub mod bootstrap;
 pub mod features;
 pub mod filter;
 pub mod filter_slam;
+pub mod motion;
 
 /// The four settings of thesis §4.6.1.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]

@@ -4,7 +4,7 @@
 
 use std::arch::x86_64::*;
 
-use super::matcher::{DecideIo, INVALID_COST, LANES, RIGHT_WAYS, RowIo, Shape, Step, decide_pixel};
+use super::row::{DecideIo, INVALID_COST, LANES, RIGHT_WAYS, RowIo, Shape, Step, decide_pixel};
 
 /// Census byte planes of row `y` from the padded image (`c` replicated columns on either side,
 /// rows `stride` apart, every pixel's top bit flipped so that signed byte compares order them as
@@ -553,7 +553,7 @@ unsafe fn interior_n<const N: usize, const K: usize, const MASK: bool>(
 /// `matcher::decide_row` eight pixels per step: the keys' disparities and costs, the costs
 /// beside the winner and the right winners gathered, the parabola and the left-right check
 /// as masks, the same floating-point operations in the same order; the last `w mod 8` pixels
-/// through `matcher::decide_pixel`.
+/// through `row::decide_pixel`.
 ///
 /// # Safety
 /// AVX2; sizes checked.

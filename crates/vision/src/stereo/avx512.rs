@@ -14,7 +14,7 @@
 
 use std::arch::x86_64::*;
 
-use super::matcher::{INVALID_COST, LANES, RIGHT_WAYS, RowIo, Shape};
+use super::row::{INVALID_COST, LANES, RIGHT_WAYS, RowIo, Shape};
 
 /// The buffers and constants of a row's interior columns, as raw pointers (the kernels' loads
 /// and stores alias nothing the borrow checker would see).

@@ -16,8 +16,9 @@ mod avx2;
 mod avx512;
 mod matcher;
 mod median;
+mod row;
 
-pub use matcher::StereoMatcher;
+pub use matcher::{StereoMatcher, block_match};
 
 use crate::image::{GrayImage, Image, ImageError};
 use crate::patch::{refine_along_row, template_with_gradient};
@@ -142,25 +143,6 @@ fn check_pair(
         });
     }
     Ok((w, h))
-}
-
-/// Computes the left disparity image of a rectified pair (`u_r = u_l − d`); invalid pixels
-/// (no unique match, failed left-right check, or no candidate) are `NaN`.
-///
-/// A [`StereoMatcher`] made for this one call: a caller matching a stream of pairs keeps one
-/// (same results, no buffers allocated per pair). The matcher streams the rows with
-/// `O(w·D·(r + s))` memory; all costs are integers, so the result does not depend on the order
-/// of the sums: it equals the straightforward volume-based computation bit for bit (tested).
-/// Census, costs and the aggregation loop have AVX2 kernels (runtime dispatch) beside their
-/// scalar references.
-///
-/// Errors if the images differ in size or are smaller than one block.
-pub fn block_match(
-    left: &GrayImage,
-    right: &GrayImage,
-    params: &StereoParams,
-) -> Result<Image<f32>, ImageError> {
-    StereoMatcher::new(*params).compute(left, right)
 }
 
 /// Converts a depth image (e.g. 16-bit millimetres) to a disparity image of a virtual stereo
