@@ -231,9 +231,11 @@ impl LoopCloser {
         };
         let t = Instant::now();
         let place = {
-            // What the search needs, copied under the graph's read lock; the search with none.
+            // What the search needs, copied under the graph's read lock, and the keyframes'
+            // images (shared, cheap to copy) under the store's; the search with neither held
+            // (the tracking thread writes the store at every keyframe).
             let planned = self.plan_map_matches(&graph.read(), job, &candidate);
-            let store = read_lock(store);
+            let store = read_lock(store).clone();
             planned.map(|plan| self.map_matches(&store, job, &candidate, plan))
         };
         self.timings.push(("loop: guided matching", t.elapsed()));

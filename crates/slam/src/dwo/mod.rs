@@ -398,6 +398,28 @@ pub enum DwoError {
     },
 }
 
+/// What [`DoubleWindowOptimiser::build`] needs of the graph beside the plan, copied out of it
+/// ([`DoubleWindowOptimiser::inputs`]: under the read lock in a thread, so that the problem is
+/// built and solved with no lock held): per active point, its inverse depth, anchor and
+/// measurements by the window's keyframes; for the constraints' marginal information, their
+/// points' inverse depths and anchors and those anchors' poses.
+#[derive(Clone, Debug, Default)]
+pub struct DwoInputs<const N: usize> {
+    points: Vec<WindowPoint<N>>,
+    constraint_points: BTreeMap<PointId, (Vector3<f64>, KeyframeId)>,
+    anchor_poses: BTreeMap<KeyframeId, Sim3>,
+}
+
+/// An active point of the window as the problem needs it.
+#[derive(Clone, Debug)]
+struct WindowPoint<const N: usize> {
+    id: PointId,
+    inverse_depth: Vector3<f64>,
+    anchor: KeyframeId,
+    /// Its measurements by the window's keyframes, in id order.
+    observations: Vec<(KeyframeId, SVector<f64, N>)>,
+}
+
 /// The least-squares problem of one double window optimisation, with its variables.
 pub struct DwoProblem {
     /// The problem.
@@ -661,9 +683,69 @@ impl DoubleWindowOptimiser {
     }
 
     /// Builds the least-squares problem of a plan (reads the graph only).
-    pub fn build<P: Projector<N> + Clone, const N: usize>(
+    /// What [`build`](Self::build) needs of `graph` for `plan`, copied out (reads the graph
+    /// only).
+    pub fn inputs<const N: usize>(
         &self,
         graph: &SlamGraph<N>,
+        plan: &DwoPlan,
+    ) -> Result<DwoInputs<N>, DwoError> {
+        let mut points = Vec::with_capacity(plan.points.len());
+        for &pid in &plan.points {
+            let pt = graph
+                .point(pid)
+                .ok_or(crate::map::GraphError::UnknownPoint(pid))?;
+            let observations = pt
+                .observers()
+                .iter()
+                .filter(|o| plan.initial_poses.contains_key(o))
+                .map(|&o| {
+                    let z = graph.keyframe(o).expect("observer exists").observations()[&pid];
+                    (o, z)
+                })
+                .collect();
+            points.push(WindowPoint {
+                id: pid,
+                inverse_depth: *pt.inverse_depth(),
+                anchor: pt.anchor(),
+                observations,
+            });
+        }
+        let mut constraint_points = BTreeMap::new();
+        let mut anchor_poses = BTreeMap::new();
+        if self.params.information == ConstraintInformation::Marginal {
+            for c in &plan.constraints {
+                for &(pid, _) in &c.points {
+                    let Some(pt) = graph.point(pid) else { continue };
+                    constraint_points.insert(pid, (*pt.inverse_depth(), pt.anchor()));
+                    if !plan.initial_poses.contains_key(&pt.anchor())
+                        && let Ok(t) = graph.pose(pt.anchor())
+                    {
+                        anchor_poses.insert(pt.anchor(), t);
+                    }
+                }
+                for k in [c.from, c.to] {
+                    if !plan.initial_poses.contains_key(&k)
+                        && let Ok(t) = graph.pose(k)
+                    {
+                        anchor_poses.insert(k, t);
+                    }
+                }
+            }
+        }
+        Ok(DwoInputs {
+            points,
+            constraint_points,
+            anchor_poses,
+        })
+    }
+
+    /// The least-squares problem of `plan` from its `inputs` (no graph access): the window's
+    /// poses, the active points anchored in it and their measurements, the pose-pose
+    /// constraints.
+    pub fn build<P: Projector<N> + Clone, const N: usize>(
+        &self,
+        inputs: &DwoInputs<N>,
         plan: &DwoPlan,
         projector: &P,
     ) -> Result<DwoProblem, DwoError> {
@@ -674,21 +756,15 @@ impl DoubleWindowOptimiser {
             .map(|(&k, t)| (k, problem.add_variable(FixedScaleSim3(*t))))
             .collect();
         let info = Information::Isotropic(self.params.sigma);
-        let mut points = Vec::with_capacity(plan.points.len());
+        let mut points = Vec::with_capacity(inputs.points.len());
         let mut point_constraints = 0;
-        for &pid in &plan.points {
-            let pt = graph
-                .point(pid)
-                .ok_or(crate::map::GraphError::UnknownPoint(pid))?;
-            let psi = problem.add_variable(*pt.inverse_depth());
-            points.push((pid, psi));
-            for &o in pt.observers() {
-                let Some(&observer) = poses.get(&o) else {
-                    continue;
-                };
-                let z = graph.keyframe(o).expect("observer exists").observations()[&pid];
+        for pt in &inputs.points {
+            let psi = problem.add_variable(pt.inverse_depth);
+            points.push((pt.id, psi));
+            for &(o, z) in &pt.observations {
+                let observer = poses[&o];
                 point_constraints += 1;
-                if o == pt.anchor() {
+                if o == pt.anchor {
                     problem.add_factor(
                         AnchorObservation {
                             inverse_depth_point: psi,
@@ -702,7 +778,7 @@ impl DoubleWindowOptimiser {
                     problem.add_factor(
                         AnchoredObservation {
                             observer_from_world: observer,
-                            anchor_from_world: poses[&pt.anchor()],
+                            anchor_from_world: poses[&pt.anchor],
                             inverse_depth_point: psi,
                             measurement: z,
                             projector: projector.clone(),
@@ -717,7 +793,7 @@ impl DoubleWindowOptimiser {
             let information = match self.params.information {
                 ConstraintInformation::Coarse => None,
                 ConstraintInformation::Marginal => {
-                    self.marginal_information(graph, plan, c, projector)
+                    self.marginal_information(inputs, plan, c, projector)
                 }
             }
             .unwrap_or_else(|| Information::Diagonal(c.information.to_vec()));
@@ -754,7 +830,7 @@ impl DoubleWindowOptimiser {
     /// small ridge (the coarse information is used then).
     fn marginal_information<P: Projector<N>, const N: usize>(
         &self,
-        graph: &SlamGraph<N>,
+        inputs: &DwoInputs<N>,
         plan: &DwoPlan,
         c: &PoseConstraint,
         projector: &P,
@@ -764,16 +840,16 @@ impl DoubleWindowOptimiser {
             plan.initial_poses
                 .get(&k)
                 .copied()
-                .or_else(|| graph.pose(k).ok())
+                .or_else(|| inputs.anchor_poses.get(&k).copied())
         };
         let (t_i, t_j) = (pose(c.from)?, pose(c.to)?);
         let inv_var = 1.0 / (self.params.sigma * self.params.sigma);
         let mut info = Matrix6::<f64>::zeros();
         for &(pid, w) in &c.points {
-            let pt = graph.point(pid)?;
-            let y = pose(pt.anchor())?
+            let (psi, anchor) = inputs.constraint_points.get(&pid)?;
+            let y = pose(*anchor)?
                 .inverse()
-                .act(&crate::factors::inverse_depth_to_point(pt.inverse_depth()));
+                .act(&crate::factors::inverse_depth_to_point(psi));
             let mut h_yy = Matrix3::<f64>::zeros();
             let mut h_jy = SMatrix::<f64, 6, 3>::zeros();
             let mut h_jj = Matrix6::<f64>::zeros();
@@ -932,7 +1008,8 @@ impl DoubleWindowOptimiser {
     ) -> Result<DwoStats, DwoError> {
         let t = Instant::now();
         let plan = self.plan(graph)?;
-        let mut dwo = self.build(graph, &plan, projector)?;
+        let inputs = self.inputs(graph, &plan)?;
+        let mut dwo = self.build(&inputs, &plan, projector)?;
         let mut stats = Self::stats(&plan, &dwo);
         stats.time_setup = t.elapsed();
         self.solve(&mut dwo, &mut stats)?;
@@ -942,20 +1019,21 @@ impl DoubleWindowOptimiser {
         Ok(stats)
     }
 
-    /// [`optimise`](Self::optimise) on a shared graph: plans and builds under a read lock,
-    /// optimises with no lock held, writes back under a write lock.
+    /// [`optimise`](Self::optimise) on a shared graph: plans and copies its inputs under a
+    /// read lock, builds and optimises with no lock held, writes back under a write lock.
     pub fn optimise_shared<P: Projector<N> + Clone, const N: usize>(
         &mut self,
         graph: &SharedGraph<N>,
         projector: &P,
     ) -> Result<DwoStats, DwoError> {
         let t = Instant::now();
-        let (plan, mut dwo) = {
+        let (plan, inputs) = {
             let g = graph.read();
             let plan = self.plan(&g)?;
-            let dwo = self.build(&g, &plan, projector)?;
-            (plan, dwo)
+            let inputs = self.inputs(&g, &plan)?;
+            (plan, inputs)
         };
+        let mut dwo = self.build(&inputs, &plan, projector)?;
         let mut stats = Self::stats(&plan, &dwo);
         stats.time_setup = t.elapsed();
         self.solve(&mut dwo, &mut stats)?;
@@ -1159,7 +1237,9 @@ mod graph_tests {
             .filter(|c| c.points.len() >= 10)
             .take(5)
         {
-            let Some(Information::Full(ours)) = dwo.marginal_information(&g, &plan, c, &cam) else {
+            let inputs = dwo.inputs(&g, &plan).unwrap();
+            let Some(Information::Full(ours)) = dwo.marginal_information(&inputs, &plan, c, &cam)
+            else {
                 panic!("no marginal information");
             };
             let pose = |k| {
@@ -1369,7 +1449,9 @@ mod graph_tests {
         let (plan, mut problem) = {
             let g = shared.read();
             let plan = dwo.plan(&g).unwrap();
-            let problem = dwo.build(&g, &plan, &cam).unwrap();
+            let problem = dwo
+                .build(&dwo.inputs(&g, &plan).unwrap(), &plan, &cam)
+                .unwrap();
             (plan, problem)
         };
         // Meanwhile: a Sim(3) loop correction between the newest and the first keyframe,
@@ -1435,7 +1517,9 @@ mod graph_tests {
         let (mut g, cam, _) = wall_graph(6, 30);
         let mut dwo = DoubleWindowOptimiser::new(DwoParams::new(5, 10, 300.0, 0.5));
         let plan = dwo.plan(&g).unwrap();
-        let mut problem = dwo.build(&g, &plan, &cam).unwrap();
+        let mut problem = dwo
+            .build(&dwo.inputs(&g, &plan).unwrap(), &plan, &cam)
+            .unwrap();
         let (removed, reanchored) = (plan.points[0], plan.points[1]);
         let r = g.reference().unwrap();
         let kf = g.add_keyframe(g.pose(r).unwrap());
