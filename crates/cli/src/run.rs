@@ -395,9 +395,9 @@ struct Run {
     output: RunOutput,
 }
 
-/// The frame loop and everything after it, for either system: the progress bar, the outputs
-/// (with `extra` writing what only one system has), ATE/RPE after `alignment` (`Sim3` for a
-/// monocular run, whose scale is its own), the report.
+/// The frame loop and everything after it: the progress bar, the outputs (with `extra`
+/// writing what only a sensor has), ATE/RPE after `alignment` (`Sim3` for a monocular run,
+/// whose scale is its own), the report.
 fn drive<S: LiveRun>(
     mut system: S,
     run: Run,
@@ -413,8 +413,71 @@ fn drive<S: LiveRun>(
         stop,
         mut output,
     } = run;
-    let mode = settings.mode;
-    let bar = if settings.quiet {
+    let start = Instant::now();
+    let ended = frame_loop(
+        &mut system,
+        stream,
+        &mut output,
+        (frames, skip_bad_frames, settings.quiet),
+        &stop,
+    )?;
+    let seconds = start.elapsed().as_secs_f64();
+    let stopped = stop.load(Ordering::SeqCst);
+    let result = system.finish(stopped || ended.failure.is_some())?;
+    print_result(&result, seconds, stopped);
+    let ground_truth = ground_truth.as_ref();
+    let evaluation = ground_truth.map(|gt| evaluate(gt, &result, alignment));
+    let mut record = result.record.clone();
+    record.extra.extend(summary_extra(
+        &result,
+        settings.mode,
+        seconds,
+        evaluation.as_ref(),
+    ));
+    output.write(&record, ground_truth)?;
+    if let Some(e) = &evaluation {
+        for line in &e.lines {
+            println!("{line}");
+        }
+    }
+    write_trajectories(&settings.out, &result, ground_truth, alignment)?;
+    print_loops(&result);
+    write_frame_stats(&settings.out.join(FRAME_STATS_FILE), &result)?;
+    write_optimisation_stats(&settings.out.join(OPTIMISATION_STATS_FILE), &result)?;
+    extra(&result)?;
+    report(&settings.out, &result, ground_truth, alignment)?;
+    println!("wrote {}", settings.out.display());
+    let outcome = Outcome {
+        frames: result.record.frames.len(),
+        seconds,
+        lost: ended.lost,
+        keyframes: result.record.keyframes.len(),
+        loops: result.loops.len(),
+        ate: evaluation.as_ref().and_then(|e| e.ate),
+    };
+    match ended.failure {
+        Some(e) => Err(e),
+        None => Ok(outcome),
+    }
+}
+
+/// How the frame loop ended: what stopped it early, and how many frames were lost.
+struct LoopEnd {
+    failure: Option<anyhow::Error>,
+    lost: usize,
+}
+
+/// Every frame of `stream` through `system` (a bad frame skipped or the end of the run, as
+/// `--on-bad-frame` says), each frame's line into the log, with a progress bar (`frames`
+/// long, hidden if `quiet`); until the stream ends, a frame fails or `stop` (Ctrl-C).
+fn frame_loop<S: LiveRun>(
+    system: &mut S,
+    stream: Box<dyn Iterator<Item = Result<Frame>>>,
+    output: &mut RunOutput,
+    (frames, skip_bad_frames, quiet): (usize, bool, bool),
+    stop: &AtomicBool,
+) -> Result<LoopEnd> {
+    let bar = if quiet {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(frames as u64)
@@ -426,7 +489,6 @@ fn drive<S: LiveRun>(
         .expect("valid template")
         .progress_chars("=> "),
     );
-    let start = Instant::now();
     let mut failure: Option<anyhow::Error> = None;
     let (mut lost, mut weak, mut keyframes) = (0usize, 0usize, 0usize);
     let mut waited = Instant::now();
@@ -478,10 +540,12 @@ fn drive<S: LiveRun>(
         ));
         waited = Instant::now();
     }
-    let interrupted = stop.load(Ordering::SeqCst) || failure.is_some();
     bar.finish_and_clear();
-    let seconds = start.elapsed().as_secs_f64();
-    let result = system.finish(interrupted)?;
+    Ok(LoopEnd { failure, lost })
+}
+
+/// The run's warnings and its one-line summary (`interrupted` by Ctrl-C).
+fn print_result(result: &RunResult, seconds: f64, interrupted: bool) {
     let processed = result.record.frames.len();
     for w in &result.warnings {
         println!("warning: {w}");
@@ -506,16 +570,22 @@ fn drive<S: LiveRun>(
             (1, _) => ", 1 new map after a loss".into(),
             (n, j) => format!(", {n} new maps after losses ({j} in the map written)"),
         },
-        if stop.load(Ordering::SeqCst) {
-            " — interrupted"
-        } else {
-            ""
-        }
+        if interrupted { " — interrupted" } else { "" }
     );
-    let ground_truth = ground_truth.as_ref();
-    let evaluation = ground_truth.map(|gt| evaluate(gt, &result, alignment));
-    let mut record = result.record.clone();
-    record.extra.insert(
+}
+
+/// What `summary.json` says beside the run's record: how it ran, why keyframes were made,
+/// the warnings, loops, relocalisations, new maps, refused loops, optimisations, the tracking
+/// thread's lock waits, and the evaluation.
+fn summary_extra(
+    result: &RunResult,
+    mode: Mode,
+    seconds: f64,
+    evaluation: Option<&Evaluation>,
+) -> serde_json::Map<String, serde_json::Value> {
+    let mut extra = serde_json::Map::new();
+    let processed = result.record.frames.len();
+    extra.insert(
         "run".into(),
         json!({
             "mode": match mode { Mode::Threaded => "threaded", Mode::Deterministic => "deterministic" },
@@ -529,64 +599,60 @@ fn drive<S: LiveRun>(
             *reasons.entry(r.name()).or_default() += 1;
         }
     }
-    record
-        .extra
-        .insert("keyframe_reasons".into(), json!(reasons));
-    record
-        .extra
-        .insert("warnings".into(), json!(result.warnings));
-    record.extra.insert(
+    extra.insert("keyframe_reasons".into(), json!(reasons));
+    extra.insert("warnings".into(), json!(result.warnings));
+    extra.insert(
         "loops".into(),
         json!(
             result
                 .loops
                 .iter()
-                .map(
-                    |l| json!({"keyframe": l.keyframe.index(), "old": l.old.index(),
-                "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind, "scale": l.scale,
-                "correction_m": l.correction.map(|d| d.displacement),
-                "path_m": l.correction.map(|d| d.path),
-                "ransac_inliers": l.evidence.map(|e| e.ransac_inliers),
-                "old_points_found": l.evidence.map(|e| e.old_points_found),
-                "old_points_predicted": l.evidence.map(|e| e.old_points_predicted)})
-                )
+                .map(|l| json!({
+        "keyframe": l.keyframe.index(), "old": l.old.index(),
+        "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind, "scale": l.scale,
+        "correction_m": l.correction.map(|d| d.displacement),
+        "path_m": l.correction.map(|d| d.path),
+        "ransac_inliers": l.evidence.map(|e| e.ransac_inliers),
+        "old_points_found": l.evidence.map(|e| e.old_points_found),
+        "old_points_predicted": l.evidence.map(|e| e.old_points_predicted)}))
                 .collect::<Vec<_>>()
         ),
     );
-    record.extra.insert(
+    extra.insert(
         "relocalisations".into(),
         json!(
             result
                 .relocalisations
                 .iter()
-                .map(|r| json!({"frame": r.frame, "keyframe": r.keyframe.index(),
-                "keyframe_frame": r.keyframe_frame, "ransac_inliers": r.ransac_inliers,
-                "tracked": r.tracked}))
+                .map(|r| json!({
+        "frame": r.frame, "keyframe": r.keyframe.index(),
+        "keyframe_frame": r.keyframe_frame, "ransac_inliers": r.ransac_inliers,
+        "tracked": r.tracked}))
                 .collect::<Vec<_>>()
         ),
     );
-    record.extra.insert(
+    extra.insert(
         "new_maps".into(),
         json!(
             result
                 .new_maps
                 .iter()
-                .map(
-                    |m| json!({"frame": m.frame, "lost_s": m.lost_for, "map": m.map,
-                "joined": m.joined, "frames": m.frames})
-                )
+                .map(|m| json!({
+        "frame": m.frame, "lost_s": m.lost_for, "map": m.map,
+        "joined": m.joined, "frames": m.frames}))
                 .collect::<Vec<_>>()
         ),
     );
-    record.extra.insert(
+    extra.insert(
         "refused_loops".into(),
         json!(
             result
                 .refused_loops
                 .iter()
-                .map(|r| json!({"frame": r.frames.0, "old_frame": r.frames.1,
-                "correction_m": r.drift.displacement, "path_m": r.drift.path,
-                "scene_depth_m": r.drift.scene_depth, "allowed_m": r.allowed}))
+                .map(|r| json!({
+        "frame": r.frames.0, "old_frame": r.frames.1,
+        "correction_m": r.drift.displacement, "path_m": r.drift.path,
+        "scene_depth_m": r.drift.scene_depth, "allowed_m": r.allowed}))
                 .collect::<Vec<_>>()
         ),
     );
@@ -595,38 +661,43 @@ fn drive<S: LiveRun>(
         .iter()
         .map(|s| s.total().as_secs_f64() * 1e3)
         .collect();
-    record.extra.insert(
+    extra.insert(
         "optimisation".into(),
         json!({"count": dwo.len(), "median_ms": median(&dwo), "max_ms": dwo.iter().copied().fold(0.0, f64::max)}),
     );
     let waits = &result.lock_waits;
     let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
-    record.extra.insert(
+    extra.insert(
         "tracking_lock_waits".into(),
         json!({"locks": waits.count, "median_ms": ms(waits.median), "p99_ms": ms(waits.p99),
             "max_ms": ms(waits.max), "frames_over_1ms": waits.frames_over_1ms}),
     );
-    if let Some(e) = &evaluation {
-        record.extra.insert("evaluation".into(), e.json.clone());
+    if let Some(e) = evaluation {
+        extra.insert("evaluation".into(), e.json.clone());
     }
-    output.write(&record, ground_truth)?;
-    let final_path = settings.out.join(FINAL_TRAJECTORY_FILE);
-    std::fs::write(&final_path, {
+    extra
+}
+
+/// The trajectory after the run (`trajectory_final.tum`) and the alternatives (each with its
+/// ATE against `ground_truth`, printed).
+fn write_trajectories(
+    out: &Path,
+    result: &RunResult,
+    ground_truth: Option<&Trajectory>,
+    alignment: Alignment,
+) -> Result<()> {
+    let tum = |t: &Trajectory| -> Result<Vec<u8>> {
         let mut buf = Vec::new();
-        write_tum(&result.final_trajectory, &mut buf)?;
-        buf
-    })
-    .with_context(|| format!("writing {}", final_path.display()))?;
-    if let Some(e) = &evaluation {
-        for line in &e.lines {
-            println!("{line}");
-        }
-    }
+        write_tum(t, &mut buf)?;
+        Ok(buf)
+    };
+    let final_path = out.join(FINAL_TRAJECTORY_FILE);
+    std::fs::write(&final_path, tum(&result.final_trajectory)?)
+        .with_context(|| format!("writing {}", final_path.display()))?;
     for (stem, trajectory) in &result.alternatives {
-        let path = settings.out.join(format!("{stem}.tum"));
-        let mut buf = Vec::new();
-        write_tum(trajectory, &mut buf)?;
-        std::fs::write(&path, buf).with_context(|| format!("writing {}", path.display()))?;
+        let path = out.join(format!("{stem}.tum"));
+        std::fs::write(&path, tum(trajectory)?)
+            .with_context(|| format!("writing {}", path.display()))?;
         if let Some(gt) = ground_truth {
             let (r, e) = data::trajectory::associate_trajectories(gt, trajectory, 0.02, 0.0);
             if let Ok(a) = ate(&r, &e, alignment) {
@@ -639,6 +710,11 @@ fn drive<S: LiveRun>(
             }
         }
     }
+    Ok(())
+}
+
+/// The monocular loops and map joins, with their scales.
+fn print_loops(result: &RunResult) {
     for l in result.loops.iter().filter(|l| l.scale.is_some()) {
         if l.kind == "merge" {
             // Two monocular maps: the scale is that of one map's world in the other's.
@@ -657,23 +733,6 @@ fn drive<S: LiveRun>(
                 l.scale.unwrap_or(1.0)
             );
         }
-    }
-    write_frame_stats(&settings.out.join(FRAME_STATS_FILE), &result)?;
-    write_optimisation_stats(&settings.out.join(OPTIMISATION_STATS_FILE), &result)?;
-    extra(&result)?;
-    report(&settings.out, &result, ground_truth, alignment)?;
-    println!("wrote {}", settings.out.display());
-    let outcome = Outcome {
-        frames: processed,
-        seconds,
-        lost,
-        keyframes: result.record.keyframes.len(),
-        loops: result.loops.len(),
-        ate: evaluation.as_ref().and_then(|e| e.ate),
-    };
-    match failure {
-        Some(e) => Err(e),
-        None => Ok(outcome),
     }
 }
 
@@ -869,6 +928,20 @@ fn report(
     ground_truth: Option<&Trajectory>,
     alignment: Alignment,
 ) -> Result<()> {
+    trajectory_plot(out, result, ground_truth, alignment)?;
+    keyframe_graph_plot(out, result)?;
+    timing_plots(out, result)?;
+    tracked_points_plot(out, result)
+}
+
+/// `trajectory.png`: the live trajectory and the one after the run against the ground truth,
+/// aligned to it (top view), the relocalised frames marked.
+fn trajectory_plot(
+    out: &Path,
+    result: &RunResult,
+    ground_truth: Option<&Trajectory>,
+    alignment: Alignment,
+) -> Result<()> {
     let live = result.record.trajectory();
     // The top view: the plane of the two axes along which the path spreads most (a hand-held
     // or driven camera moves little vertically, whichever axis a dataset calls up: y down in
@@ -955,28 +1028,7 @@ fn report(
         color: PALETTE[1],
         style: Style::Dashed,
     });
-    if !result.relocalisations.is_empty() {
-        let stamp = |index: usize| {
-            let f = result.record.frames.iter().find(|f| f.index == index)?;
-            Some(f.timestamp)
-        };
-        series.push(Series {
-            label: format!("relocalised ({})", result.relocalisations.len()),
-            points: result
-                .relocalisations
-                .iter()
-                .filter_map(|r| {
-                    let t = stamp(r.frame)?;
-                    live_points
-                        .iter()
-                        .find(|(s, _)| (s - t).abs() < 1e-6)
-                        .map(|(_, p)| *p)
-                })
-                .collect(),
-            color: PALETTE[2],
-            style: Style::Markers,
-        });
-    }
+    series.extend(relocalisation_markers(result, &live_points));
     plot::plot(
         &out.join("trajectory.png"),
         &Figure {
@@ -991,6 +1043,39 @@ fn report(
         },
         &series,
     )?;
+    Ok(())
+}
+
+/// The relocalised frames' positions on the live trajectory (`live_points`, as plotted).
+fn relocalisation_markers(result: &RunResult, live_points: &[(f64, (f64, f64))]) -> Option<Series> {
+    if result.relocalisations.is_empty() {
+        return None;
+    }
+    let stamp = |index: usize| {
+        let f = result.record.frames.iter().find(|f| f.index == index)?;
+        Some(f.timestamp)
+    };
+    Some(Series {
+        label: format!("relocalised ({})", result.relocalisations.len()),
+        points: result
+            .relocalisations
+            .iter()
+            .filter_map(|r| {
+                let t = stamp(r.frame)?;
+                live_points
+                    .iter()
+                    .find(|(s, _)| (s - t).abs() < 1e-6)
+                    .map(|(_, p)| *p)
+            })
+            .collect(),
+        color: PALETTE[2],
+        style: Style::Markers,
+    })
+}
+
+/// `keyframe_graph.png`: the keyframes' centres, their covisibility edges and the loops (top
+/// view, in the map's frame).
+fn keyframe_graph_plot(out: &Path, result: &RunResult) -> Result<()> {
     // The keyframe graph: keyframe centres, covisibility edges, loop edges (in the map's
     // frame, the first keyframe's).
     let nodes: std::collections::BTreeMap<slam::map::KeyframeId, nalgebra::Vector3<f64>> = result
@@ -1053,6 +1138,12 @@ fn report(
             },
         ],
     )?;
+    Ok(())
+}
+
+/// `time_per_frame.png` (the tracking thread's time per frame) and `time_per_keyframe.png`
+/// (the double window optimisations).
+fn timing_plots(out: &Path, result: &RunResult) -> Result<()> {
     // Time per frame (tracking thread) and per optimisation.
     let frame_ms: Vec<(f64, f64)> = result
         .frames
@@ -1109,6 +1200,11 @@ fn report(
             style: Style::Points,
         }],
     )?;
+    Ok(())
+}
+
+/// `tracked_points.png`: per frame, the candidates visible, searched, found and inliers.
+fn tracked_points_plot(out: &Path, result: &RunResult) -> Result<()> {
     let stat = |f: fn(&system::tracker::TrackerStats) -> usize| -> Vec<(f64, f64)> {
         result
             .frames

@@ -15,7 +15,7 @@ use rand_chacha::ChaCha8Rng;
 use sim::why_filter::bootstrap::{BootstrapOptions, bootstrap};
 use sim::why_filter::features::ImageArea;
 use sim::why_filter::filter::{Anchor, GaussNewtonFilter, LmSettings};
-use slam::factors::{AnchorObservation, AnchoredObservation, Projector};
+use slam::factors::{AnchoredObservation, InverseDepthObservation, Projector};
 
 const SIGMA: f64 = 0.5;
 
@@ -120,7 +120,8 @@ fn converged_joint_update_equals_batch_ba() {
     for j in 0..ys.len() {
         problem
             .add_factor(
-                AnchorObservation {
+                InverseDepthObservation {
+                    observer_from_anchor: None,
                     inverse_depth_point: psis[j],
                     measurement: z0[j],
                     projector: cam,
@@ -207,7 +208,8 @@ fn information_after_marginalisation_equals_the_batch_marginal() {
         let (anchor_var, anchor_frame) = if j < 8 { (origin, 0) } else { (t1, 1) };
         problem
             .add_factor(
-                AnchorObservation {
+                InverseDepthObservation {
+                    observer_from_anchor: None,
                     inverse_depth_point: psi_vars[j],
                     measurement: measure(&cam, &truth[anchor_frame], &ys[j], None),
                     projector: cam,

@@ -281,7 +281,9 @@ impl Tracker {
         Some(moved)
     }
 
-    /// Tracks `frame` against the map.
+    /// Tracks `frame` against the map, in stages: the dense prior, the candidates of `N1`
+    /// and their visibility, the guided search, the robust motion-only BA, the state, and the
+    /// motion model moved on.
     pub fn track(
         &mut self,
         graph: &SharedGraph<3>,
@@ -292,79 +294,152 @@ impl Tracker {
         // The constant-velocity prediction over the time since the last frame (dropped frames
         // bridged: Motion::elapsed).
         let predicted = self.motion.predict(Stamp::of(frame))?;
-        let camera = self.camera.pinhole;
-        // 1. The prior: dense alignment against the last frame with depth.
         let t = Instant::now();
-        let mut prior = Prior::ConstantVelocity;
-        let mut pose_prior = predicted;
-        if let Some(reference) = &self.motion.dense_reference {
-            let params = DenseParams {
-                levels: self.config.pyramid_levels,
-                finest_level: self.config.dense_finest_level,
-                max_iterations: self.config.dense_iterations,
-                ..DenseParams::default()
-            };
-            let initial = predicted.compose(&reference.camera_from_world.inverse());
-            if let Some(depth) = &reference.frame.depth
-                && let Ok(r) = align_pyramids(
-                    &reference.frame.pyramid,
-                    depth,
-                    &frame.pyramid,
-                    &camera,
-                    &initial,
-                    &params,
-                )
-                && r.num_residuals >= 100
-                && r.final_cost.is_finite()
-            {
-                pose_prior = r.cur_from_ref.compose(&reference.camera_from_world);
-                prior = Prior::Dense;
-            }
-        }
+        let (mut pose_prior, prior) = self.dense_prior(frame, predicted);
         timings.push(("track: dense prior", t.elapsed()));
-        // 2. The candidates of N1, copied out under the read lock.
         let t = Instant::now();
-        let (reference, t_ref, points, then) = {
-            let g = graph.read();
-            // Poses whose map was merged into another since the last frame (or meanwhile, by
-            // the loop-closure thread) move with it, the prior too.
-            if let Some(moved) = self.follow_merges(&g) {
-                pose_prior = Sim3::from_se3(&pose_prior).compose(&moved).rigid_part();
-            }
-            let reference = g.reference()?;
-            let map = g.map_of(reference).ok()?;
-            self.motion.map = Some(map);
-            let t_ref = g.pose(reference).ok()?;
-            let points: Vec<SearchPoint> = tracking_candidates(&g, reference)
-                .into_iter()
-                .filter_map(|p| SearchPoint::from_graph(&g, p))
-                .collect();
-            let then = TrackedThen {
-                reference_pose: t_ref,
-                version: g.version(),
-                merges: g.merges().len(),
-                map,
-            };
-            (reference, t_ref, points, then)
-        };
+        let candidates = self.candidates(graph, &mut pose_prior)?;
         let mut stats = TrackerStats {
-            candidates: points.len(),
+            candidates: candidates.points.len(),
             ..TrackerStats::default()
         };
-        // 3. Visibility (PTAM): in the image, in front, not seen from too different a view.
+        let selected = self.visible(frame, &candidates.points, &pose_prior, &mut stats);
+        timings.push(("track: candidates", t.elapsed()));
+        let t = Instant::now();
+        let found = self.guided_search(
+            frame,
+            store,
+            &candidates.points,
+            &selected,
+            &pose_prior,
+            prior,
+        );
+        stats.found = found.len();
+        timings.push(("track: guided search", t.elapsed()));
+        let t = Instant::now();
+        let fit = self.motion_only_ba(frame, &candidates, &found, &pose_prior);
+        timings.push(("track: motion-only BA", t.elapsed()));
+        stats.inliers = fit.inliers.len();
+        let state = self.state(&fit, &stats, found.len(), selected.len(), prior);
+        let camera_from_world = match state {
+            TrackingState::Lost(_) => Sim3::from_se3(&pose_prior),
+            _ => fit.pose,
+        };
+        let points = &candidates.points;
+        let stereo_of: std::collections::BTreeMap<usize, Vector3<f64>> =
+            fit.stereo.iter().copied().collect();
+        let matches: Vec<(PointId, Vector3<f64>)> = fit
+            .inliers
+            .iter()
+            .filter_map(|i| stereo_of.get(i).map(|z| (points[*i].point, *z)))
+            .collect();
+        let mut depths: Vec<f64> = fit
+            .inliers
+            .iter()
+            .map(|&i| camera_from_world.rigid_part().act(&points[i].world).z)
+            .filter(|z| *z > 0.0)
+            .collect();
+        depths.sort_by(f64::total_cmp);
+        let median_depth = depths.get(depths.len() / 2).copied().unwrap_or(f64::NAN);
+        self.advance(frame, &camera_from_world, &state);
+        Some(Tracked {
+            camera_from_world,
+            state,
+            matches,
+            reference: candidates.reference,
+            then: candidates.then,
+            median_depth,
+            prior: Some(prior),
+            stats,
+            timings,
+        })
+    }
+
+    /// The pose prior (thesis eq. 6.7): dense alignment against the last frame with depth,
+    /// from the constant-velocity `predicted` pose; that prediction where alignment fails.
+    fn dense_prior(&self, frame: &FrameData, predicted: Se3) -> (Se3, Prior) {
+        let Some(reference) = &self.motion.dense_reference else {
+            return (predicted, Prior::ConstantVelocity);
+        };
+        let params = DenseParams {
+            levels: self.config.pyramid_levels,
+            finest_level: self.config.dense_finest_level,
+            max_iterations: self.config.dense_iterations,
+            ..DenseParams::default()
+        };
+        let initial = predicted.compose(&reference.camera_from_world.inverse());
+        if let Some(depth) = &reference.frame.depth
+            && let Ok(r) = align_pyramids(
+                &reference.frame.pyramid,
+                depth,
+                &frame.pyramid,
+                &self.camera.pinhole,
+                &initial,
+                &params,
+            )
+            && r.num_residuals >= 100
+            && r.final_cost.is_finite()
+        {
+            return (
+                r.cur_from_ref.compose(&reference.camera_from_world),
+                Prior::Dense,
+            );
+        }
+        (predicted, Prior::ConstantVelocity)
+    }
+
+    /// The candidate points of `N1(ref)`, copied out under the graph's read lock with the
+    /// reference and the graph as it was. Poses whose map was merged into another since the
+    /// last frame (or meanwhile, by the loop-closure thread) move with it, `pose_prior` too.
+    fn candidates(&mut self, graph: &SharedGraph<3>, pose_prior: &mut Se3) -> Option<Candidates> {
+        let g = graph.read();
+        if let Some(moved) = self.follow_merges(&g) {
+            *pose_prior = Sim3::from_se3(pose_prior).compose(&moved).rigid_part();
+        }
+        let reference = g.reference()?;
+        let map = g.map_of(reference).ok()?;
+        self.motion.map = Some(map);
+        let t_ref = g.pose(reference).ok()?;
+        let points: Vec<SearchPoint> = tracking_candidates(&g, reference)
+            .into_iter()
+            .filter_map(|p| SearchPoint::from_graph(&g, p))
+            .collect();
+        let then = TrackedThen {
+            reference_pose: t_ref,
+            version: g.version(),
+            merges: g.merges().len(),
+            map,
+        };
+        Some(Candidates {
+            reference,
+            t_ref,
+            points,
+            then,
+        })
+    }
+
+    /// The candidates that pass PTAM's visibility tests at `pose_prior` (in the image, in
+    /// front, not seen from too different a view), at most `max_searched` of them spread over
+    /// the image (thesis Alg. 2): `(candidate, predicted pixel)`.
+    fn visible(
+        &self,
+        frame: &FrameData,
+        points: &[SearchPoint],
+        pose_prior: &Se3,
+        stats: &mut TrackerStats,
+    ) -> Vec<(usize, Vector2<f64>)> {
         let (w, h) = (frame.gray().width(), frame.gray().height());
         let max_angle = self.config.max_view_angle_deg.to_radians();
         let visible: Vec<(usize, Vector2<f64>)> = points
             .iter()
             .enumerate()
             .filter_map(|(i, p)| {
-                let (u, _) = predict(&camera, &pose_prior, p, w, h, 6.0)?;
-                (view_angle(&pose_prior, p) < max_angle).then_some((i, u))
+                let (u, _) = predict(&self.camera.pinhole, pose_prior, p, w, h, 6.0)?;
+                (view_angle(pose_prior, p) < max_angle).then_some((i, u))
             })
             .collect();
         stats.visible = visible.len();
-        // At most `max_searched`, spread over the image (thesis Alg. 2).
-        let selected: Vec<(usize, Vector2<f64>)> = if visible.len() > self.config.max_searched {
+        let selected = if visible.len() > self.config.max_searched {
             let quad: Vec<QuadPoint> = visible
                 .iter()
                 .enumerate()
@@ -384,22 +459,33 @@ impl Tracker {
             visible
         };
         stats.searched = selected.len();
-        timings.push(("track: candidates", t.elapsed()));
-        // 4. Guided search.
-        let t = Instant::now();
+        selected
+    }
+
+    /// Guided search (thesis §6.3) of the `selected` candidates around `pose_prior`, in the
+    /// small radius after a dense prior, the wide one after constant velocity only.
+    fn guided_search(
+        &mut self,
+        frame: &FrameData,
+        store: &KeyframeStore,
+        points: &[SearchPoint],
+        selected: &[(usize, Vector2<f64>)],
+        pose_prior: &Se3,
+        prior: Prior,
+    ) -> Vec<(usize, Vector2<f64>)> {
         let radius = match prior {
             Prior::Dense => self.config.search_radius,
             Prior::ConstantVelocity => self.config.wide_search_radius,
         };
         let mut found: Vec<(usize, Vector2<f64>)> = Vec::with_capacity(selected.len());
-        for (i, _) in &selected {
+        for (i, _) in selected {
             let p = &points[*i];
             let Some(anchor) = store.get(p.anchor) else {
                 continue;
             };
             if let Some(u) = search(
-                &camera,
-                &pose_prior,
+                &self.camera.pinhole,
+                pose_prior,
                 p,
                 anchor,
                 frame.gray(),
@@ -411,12 +497,22 @@ impl Tracker {
                 found.push((*i, u));
             }
         }
-        stats.found = found.len();
-        timings.push(("track: guided search", t.elapsed()));
-        // 5. Robust motion-only BA from the prior: stereo measurements where the frame has
-        // depth, else pixels only.
-        let t = Instant::now();
-        let prior_sim3 = Sim3::from_se3(&pose_prior);
+        found
+    }
+
+    /// Robust motion-only BA (eq. 4.15) from the prior: stereo measurements where the frame
+    /// has depth for at least `min_tracked` of the matches, else pixels only; the matches
+    /// within the χ² 95 % gate of the fit are its inliers.
+    fn motion_only_ba(
+        &self,
+        frame: &FrameData,
+        candidates: &Candidates,
+        found: &[(usize, Vector2<f64>)],
+        pose_prior: &Se3,
+    ) -> Fit {
+        let points = &candidates.points;
+        let t_ref = candidates.t_ref;
+        let prior_sim3 = Sim3::from_se3(pose_prior);
         let in_ref = |i: usize| t_ref.act(&points[i].world);
         let stereo: Vec<(usize, Vector3<f64>)> = found
             .iter()
@@ -426,46 +522,40 @@ impl Tracker {
             min_matches: 6,
             ..MotionOnlyOptions::robust(self.sigma)
         };
-        let (fit, matches_used): (Option<(Sim3, Vec<f64>)>, Vec<usize>) =
-            if stereo.len() >= self.config.min_tracked {
-                let problem = PoseProblem::new(
-                    t_ref,
-                    stereo.iter().map(|(i, _)| in_ref(*i)).collect(),
-                    stereo
-                        .iter()
-                        .map(|(_, z)| *z)
-                        .collect::<Vec<SVector<f64, 3>>>(),
-                    &prior_sim3,
-                );
-                (
-                    problem
-                        .solve(&self.camera, &options)
-                        .ok()
-                        .map(|f| (f.camera_from_world, f.chi2)),
-                    stereo.iter().map(|(i, _)| *i).collect(),
-                )
-            } else {
-                let problem = PoseProblem::new(
-                    t_ref,
-                    found.iter().map(|(i, _)| in_ref(*i)).collect(),
-                    found.iter().map(|(_, u)| *u).collect::<Vec<Vector2<f64>>>(),
-                    &prior_sim3,
-                );
-                (
-                    problem
-                        .solve(&camera, &options)
-                        .ok()
-                        .map(|f| (f.camera_from_world, f.chi2)),
-                    found.iter().map(|(i, _)| *i).collect(),
-                )
-            };
-        timings.push(("track: motion-only BA", t.elapsed()));
-        let dim = if stereo.len() >= self.config.min_tracked {
-            3
+        let use_stereo = stereo.len() >= self.config.min_tracked;
+        let (fit, matches_used): (Option<(Sim3, Vec<f64>)>, Vec<usize>) = if use_stereo {
+            let problem = PoseProblem::new(
+                t_ref,
+                stereo.iter().map(|(i, _)| in_ref(*i)).collect(),
+                stereo
+                    .iter()
+                    .map(|(_, z)| *z)
+                    .collect::<Vec<SVector<f64, 3>>>(),
+                &prior_sim3,
+            );
+            (
+                problem
+                    .solve(&self.camera, &options)
+                    .ok()
+                    .map(|f| (f.camera_from_world, f.chi2)),
+                stereo.iter().map(|(i, _)| *i).collect(),
+            )
         } else {
-            2
+            let problem = PoseProblem::new(
+                t_ref,
+                found.iter().map(|(i, _)| in_ref(*i)).collect(),
+                found.iter().map(|(_, u)| *u).collect::<Vec<Vector2<f64>>>(),
+                &prior_sim3,
+            );
+            (
+                problem
+                    .solve(&self.camera.pinhole, &options)
+                    .ok()
+                    .map(|f| (f.camera_from_world, f.chi2)),
+                found.iter().map(|(i, _)| *i).collect(),
+            )
         };
-        let gate = lsq::chi2_quantile(dim, 0.95);
+        let gate = lsq::chi2_quantile(if use_stereo { 3 } else { 2 }, 0.95);
         let (pose, inliers) = match &fit {
             Some((pose, chi2)) => (
                 *pose,
@@ -478,22 +568,37 @@ impl Tracker {
             ),
             None => (prior_sim3, Vec::new()),
         };
-        stats.inliers = inliers.len();
-        let state = if inliers.len() >= self.config.min_good {
+        Fit {
+            pose,
+            inliers,
+            stereo,
+        }
+    }
+
+    /// The tracking state from the fit's inliers (`found` matches of `searched`). After a loss
+    /// the prior is not to be trusted, and a weak fit is more likely a few chance matches around
+    /// a wrong pose than the map found again (a kidnapped camera on 7-Scenes: 12–15 "inliers"
+    /// of 400 points searched, 1.5 m off, from which new keyframes grew a displaced map): the
+    /// map counts as found again only with a good frame (or a relocalisation, which restarts
+    /// the tracker).
+    fn state(
+        &mut self,
+        fit: &Fit,
+        stats: &TrackerStats,
+        found: usize,
+        searched: usize,
+        prior: Prior,
+    ) -> TrackingState {
+        let inliers = fit.inliers.len();
+        let state = if inliers >= self.config.min_good {
             TrackingState::Good
-        } else if inliers.len() >= self.config.min_tracked {
+        } else if inliers >= self.config.min_tracked {
             TrackingState::Weak(format!(
-                "{} inliers of {} matches ({} searched)",
-                inliers.len(),
-                found.len(),
-                selected.len()
+                "{inliers} inliers of {found} matches ({searched} searched)"
             ))
         } else {
             TrackingState::Lost(format!(
-                "{} inliers of {} matches ({} searched, {} visible) around the {}",
-                inliers.len(),
-                found.len(),
-                selected.len(),
+                "{inliers} inliers of {found} matches ({searched} searched, {} visible) around the {}",
                 stats.visible,
                 match prior {
                     Prior::Dense => "dense prior",
@@ -501,11 +606,6 @@ impl Tracker {
                 }
             ))
         };
-        // After a loss the prior is not to be trusted, and a weak fit is more likely a few
-        // chance matches around a wrong pose than the map found again (a kidnapped camera on
-        // 7-Scenes: 12–15 "inliers" of 400 points searched, 1.5 m off, from which new keyframes
-        // grew a displaced map): the map counts as found again only with a good frame (or a
-        // relocalisation, which restarts the tracker).
         let state = match state {
             TrackingState::Weak(reason) if self.motion.recovering => TrackingState::Lost(format!(
                 "{reason} after a loss: not trusted until a good frame"
@@ -513,24 +613,11 @@ impl Tracker {
             state => state,
         };
         self.motion.recovering = matches!(state, TrackingState::Lost(_));
-        let camera_from_world = match state {
-            TrackingState::Lost(_) => prior_sim3,
-            _ => pose,
-        };
-        let stereo_of: std::collections::BTreeMap<usize, Vector3<f64>> =
-            stereo.iter().copied().collect();
-        let matches: Vec<(PointId, Vector3<f64>)> = inliers
-            .iter()
-            .filter_map(|i| stereo_of.get(i).map(|z| (points[*i].point, *z)))
-            .collect();
-        let mut depths: Vec<f64> = inliers
-            .iter()
-            .map(|&i| camera_from_world.rigid_part().act(&points[i].world).z)
-            .filter(|z| *z > 0.0)
-            .collect();
-        depths.sort_by(f64::total_cmp);
-        let median_depth = depths.get(depths.len() / 2).copied().unwrap_or(f64::NAN);
-        // 6. The motion model and the next dense reference.
+        state
+    }
+
+    /// The motion model and the next dense reference after `frame` at `camera_from_world`.
+    fn advance(&mut self, frame: &Arc<FrameData>, camera_from_world: &Sim3, state: &TrackingState) {
         let rigid = camera_from_world.rigid_part();
         self.motion.advance(Stamp::of(frame), rigid);
         if frame.depth.is_some() && !matches!(state, TrackingState::Lost(_)) {
@@ -539,18 +626,24 @@ impl Tracker {
                 camera_from_world: rigid,
             });
         }
-        Some(Tracked {
-            camera_from_world,
-            state,
-            matches,
-            reference,
-            then,
-            median_depth,
-            prior: Some(prior),
-            stats,
-            timings,
-        })
     }
+}
+
+/// The candidates of a frame ([`Tracker::track`]): the reference keyframe, its pose, the
+/// points of its `N1` and the graph as it was.
+struct Candidates {
+    reference: KeyframeId,
+    t_ref: Sim3,
+    points: Vec<SearchPoint>,
+    then: TrackedThen,
+}
+
+/// The motion-only BA's result: the pose, the inliers (indices of candidates) and the stereo
+/// measurements of the matches.
+struct Fit {
+    pose: Sim3,
+    inliers: Vec<usize>,
+    stereo: Vec<(usize, Vector3<f64>)>,
 }
 
 #[cfg(test)]

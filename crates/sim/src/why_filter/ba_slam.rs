@@ -16,7 +16,7 @@ use lie::{LieGroup, Se3};
 use nalgebra::{SVector, Vector2, Vector3};
 use slam::ba::{BaMode, BundleAdjustment, Gauge, Observation};
 use slam::clock::CpuStopwatch;
-use slam::factors::{AnchorObservation, AnchoredObservation, inverse_depth_to_point};
+use slam::factors::{AnchoredObservation, InverseDepthObservation, inverse_depth_to_point};
 use slam::tracking::TrackingError;
 use std::collections::{HashMap, HashSet};
 use std::time::Duration;
@@ -80,7 +80,8 @@ impl<C: InverseDepthCamera<2>> PointInitialiser<C> for TwoViewInverseDepth {
         let info = lsq::Information::Isotropic(sigma);
         problem
             .add_factor(
-                AnchorObservation {
+                InverseDepthObservation {
+                    observer_from_anchor: None,
                     inverse_depth_point: psi,
                     measurement: *z_anchor,
                     projector: camera.clone(),

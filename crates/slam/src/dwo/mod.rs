@@ -43,7 +43,7 @@
 //! lock.
 
 use crate::factors::{
-    AnchorObservation, AnchoredLinearization, AnchoredObservation, AnchoredPose, Projector,
+    AnchoredLinearization, AnchoredObservation, AnchoredPose, InverseDepthObservation, Projector,
     inverse_depth_to_point, linearize_anchored,
 };
 use crate::map::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph, Version};
@@ -766,7 +766,8 @@ impl DoubleWindowOptimiser {
                 point_constraints += 1;
                 if o == pt.anchor {
                     problem.add_factor(
-                        AnchorObservation {
+                        InverseDepthObservation {
+                            observer_from_anchor: None,
                             inverse_depth_point: psi,
                             measurement: z,
                             projector: projector.clone(),
@@ -1266,7 +1267,8 @@ mod graph_tests {
                 for k in [c.from, c.to] {
                     let z = g.keyframe(k).unwrap().observations()[&pid];
                     if k == pt.anchor() {
-                        let f = AnchorObservation {
+                        let f = InverseDepthObservation {
+                            observer_from_anchor: None,
                             inverse_depth_point: psi,
                             measurement: z,
                             projector: cam,

@@ -27,79 +27,10 @@
 //! fraction of its inverse depth, `σ_q ≤ κ·q` — i.e. the depth is known to about `κ` relative
 //! accuracy — after a minimum number of measurements.
 
-use crate::factors::{
-    MIN_INVERSE_DEPTH, Projector, d_inverse_depth_to_point, inverse_depth_to_point,
-};
+use crate::factors::{Projector, inverse_depth_to_point, predict_inverse_depth};
 use lie::{LieGroup, Se3};
-use lsq::{Factor, Jacobians, Values, Var, VarKey};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use std::collections::BTreeMap;
-
-/// The predicted measurement of an anchored inverse-depth point and its Jacobian with respect
-/// to `ψ`, with the observer-from-anchor transformation `T_la = T_lw·T_aw⁻¹` known (thesis
-/// eq. B.19–B.21): `ẑ = proj(T_la·Π(ψ))`, `∂ẑ/∂ψ = ∂ẑ/∂x · R_la · ∂Π/∂ψ`. `None` when `ψ₃` is not
-/// a positive inverse depth or the point is not projectable (behind the camera).
-pub fn predict_inverse_depth<P: Projector<N>, const N: usize>(
-    projector: &P,
-    observer_from_anchor: &Se3,
-    psi: &Vector3<f64>,
-) -> Option<(SVector<f64, N>, SMatrix<f64, N, 3>)> {
-    if !psi.iter().all(|v| v.is_finite()) || psi.z <= MIN_INVERSE_DEPTH {
-        return None;
-    }
-    let x = observer_from_anchor.act(&inverse_depth_to_point(psi));
-    let (z, dz_dx) = projector.project(&x)?;
-    Some((
-        z,
-        dz_dx * observer_from_anchor.d_act_d_point() * d_inverse_depth_to_point(psi),
-    ))
-}
-
-/// The measurement residual of one filter update as an [`lsq`] factor, unary in `ψ` with the
-/// observer and anchor poses held constant: `r = ẑ(T_la·Π(ψ)) − z` (thesis eq. 3.36, second
-/// term). The filter evaluates the same function through [`predict_inverse_depth`]; this form
-/// lets its Jacobian be checked with [`lsq::numeric::check_jacobians`] and lets a caller add the
-/// filter's measurements to a larger problem.
-pub struct InverseDepthMeasurement<P, const N: usize> {
-    /// `ψ` in the anchor frame.
-    pub inverse_depth_point: Var<Vector3<f64>>,
-    /// `T_la = T_lw·T_aw⁻¹`.
-    pub observer_from_anchor: Se3,
-    /// The measurement `z`.
-    pub measurement: SVector<f64, N>,
-    /// The measurement model.
-    pub projector: P,
-}
-
-impl<P: Projector<N>, const N: usize> Factor for InverseDepthMeasurement<P, N> {
-    fn residual_dim(&self) -> usize {
-        N
-    }
-
-    fn variables(&self) -> Vec<VarKey> {
-        vec![self.inverse_depth_point.key()]
-    }
-
-    fn evaluate(
-        &self,
-        values: &Values,
-        residual: &mut [f64],
-        jacobians: Option<&mut Jacobians<'_>>,
-    ) -> bool {
-        let Some((z, j)) = predict_inverse_depth(
-            &self.projector,
-            &self.observer_from_anchor,
-            values.get(self.inverse_depth_point),
-        ) else {
-            return false;
-        };
-        residual.copy_from_slice((z - self.measurement).as_slice());
-        if let Some(jac) = jacobians {
-            jac.set(0, &j);
-        }
-        true
-    }
-}
 
 /// Parameters of the feature-initialisation filters.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -166,7 +97,7 @@ impl<const N: usize> InverseDepthFilter<N> {
         measurement: SVector<f64, N>,
         psi: Vector3<f64>,
     ) -> Option<Self> {
-        let (_, j0) = predict_inverse_depth(projector, &Se3::identity(), &psi)?;
+        let (_, j0) = predict_inverse_depth(projector, Some(&Se3::identity()), &psi)?;
         let information = j0.transpose() * j0 / (sigma * sigma);
         Some(InverseDepthFilter {
             anchor_frame,
@@ -215,7 +146,7 @@ impl<const N: usize> InverseDepthFilter<N> {
         observer_from_world: &Se3,
     ) -> Option<SVector<f64, N>> {
         let t_la = observer_from_world.compose(&self.anchor_from_world.inverse());
-        predict_inverse_depth(projector, &t_la, &self.psi).map(|(z, _)| z)
+        predict_inverse_depth(projector, Some(&t_la), &self.psi).map(|(z, _)| z)
     }
 
     /// The Gauss-Newton filter update with measurement `z` taken from `observer_from_world` in
@@ -237,7 +168,7 @@ impl<const N: usize> InverseDepthFilter<N> {
         let prior = self.psi;
         let lambda_prior = self.information;
         let cost = |psi: &Vector3<f64>| -> Option<(f64, SVector<f64, N>, SMatrix<f64, N, 3>)> {
-            let (zh, j) = predict_inverse_depth(projector, &t_la, psi)?;
+            let (zh, j) = predict_inverse_depth(projector, Some(&t_la), psi)?;
             let r = zh - z;
             let dp = psi - prior;
             Some((
@@ -474,7 +405,8 @@ impl<P: Projector<N>, const N: usize> FeatureFilters<P, N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::factors::point_to_inverse_depth;
+    use crate::factors::{InverseDepthObservation, point_to_inverse_depth};
+    use lsq::Values;
     use geom::{CameraModel, PinholeCamera, StereoCamera};
     use lsq::numeric::check_jacobians;
     use nalgebra::{Vector2, Vector6};
@@ -510,17 +442,17 @@ mod tests {
             );
             let mut values = Values::new();
             let v = values.add(psi);
-            let mono = InverseDepthMeasurement {
+            let mono = InverseDepthObservation {
                 inverse_depth_point: v,
-                observer_from_anchor: t,
+                observer_from_anchor: Some(t),
                 measurement: Vector2::new(300.0, 200.0),
                 projector: camera(),
             };
             let c = check_jacobians(&mono, &values, 1e-6).expect("projectable");
             assert!(c.passes(1e-6), "mono {c:?}");
-            let st = InverseDepthMeasurement {
+            let st = InverseDepthObservation {
                 inverse_depth_point: v,
-                observer_from_anchor: t,
+                observer_from_anchor: Some(t),
                 measurement: Vector3::new(300.0, 200.0, 280.0),
                 projector: stereo,
             };

@@ -15,9 +15,9 @@ mod camera;
 pub use bal::{BalCameraState, BalObservationFactor};
 pub use camera::InverseDepthCamera;
 pub use reprojection::{
-    AnchorObservation, AnchoredLinearization, AnchoredObservation, AnchoredPose, MIN_INVERSE_DEPTH,
-    PointObservation, d_inverse_depth_to_point, inverse_depth_to_point, linearize_anchored,
-    point_to_inverse_depth,
+    AnchoredLinearization, AnchoredObservation, AnchoredPose, InverseDepthObservation,
+    MIN_INVERSE_DEPTH, PointObservation, d_inverse_depth_to_point, inverse_depth_to_point,
+    linearize_anchored, point_to_inverse_depth, predict_inverse_depth,
 };
 
 use geom::{CameraModel, StereoCamera};

@@ -212,18 +212,53 @@ where
     })
 }
 
-/// An anchored inverse-depth point observed in its own anchor frame: `r = ẑ(Π(ψ)) − z`,
-/// unary in `ψ` (thesis §4.4.2: the anchor's observation does not involve any pose).
-pub struct AnchorObservation<P, const N: usize> {
+/// The predicted measurement of an anchored inverse-depth point and its Jacobian with respect
+/// to `ψ`, by a camera whose pose relative to the anchor, `T_la = T_lw·T_aw⁻¹`, is known (thesis
+/// eq. B.19–B.21): `ẑ = proj(T_la·Π(ψ))`, `∂ẑ/∂ψ = ∂ẑ/∂x · R_la · ∂Π/∂ψ`; in the anchor itself
+/// (`None`), `ẑ = proj(Π(ψ))`. `None` when `ψ` is not finite or `ψ₃` not a positive inverse depth,
+/// or the point is not projectable (behind the camera).
+pub fn predict_inverse_depth<P: Projector<N>, const N: usize>(
+    projector: &P,
+    observer_from_anchor: Option<&Se3>,
+    psi: &Vector3<f64>,
+) -> Option<(SVector<f64, N>, SMatrix<f64, N, 3>)> {
+    if !psi.iter().all(|v| v.is_finite()) || psi.z <= MIN_INVERSE_DEPTH {
+        return None;
+    }
+    let y = inverse_depth_to_point(psi);
+    match observer_from_anchor {
+        None => {
+            let (z, dz_dx) = projector.project(&y)?;
+            Some((z, dz_dx * d_inverse_depth_to_point(psi)))
+        }
+        Some(t_la) => {
+            let (z, dz_dx) = projector.project(&t_la.act(&y))?;
+            Some((
+                z,
+                dz_dx * t_la.d_act_d_point() * d_inverse_depth_to_point(psi),
+            ))
+        }
+    }
+}
+
+/// An anchored inverse-depth point measured by a camera whose pose relative to the anchor is
+/// held constant: `r = ẑ(T_la·Π(ψ)) − z`, unary in `ψ` ([`predict_inverse_depth`]). In its own
+/// anchor frame (`observer_from_anchor: None`) the observation involves no pose at all (thesis
+/// §4.4.2: the anchor's observation in a window, the first term of a feature filter); with a
+/// known `T_la` it is a measurement of a feature-initialisation filter (thesis eq. 3.36, second
+/// term).
+pub struct InverseDepthObservation<P, const N: usize> {
     /// `ψ = (u, v, q)` in the anchor frame.
     pub inverse_depth_point: Var<Vector3<f64>>,
+    /// `T_la = T_lw·T_aw⁻¹`; `None` in the anchor frame itself.
+    pub observer_from_anchor: Option<Se3>,
     /// The measurement `z`.
     pub measurement: SVector<f64, N>,
     /// The measurement model.
     pub projector: P,
 }
 
-impl<P: Projector<N>, const N: usize> Factor for AnchorObservation<P, N> {
+impl<P: Projector<N>, const N: usize> Factor for InverseDepthObservation<P, N> {
     fn residual_dim(&self) -> usize {
         N
     }
@@ -238,17 +273,16 @@ impl<P: Projector<N>, const N: usize> Factor for AnchorObservation<P, N> {
         residual: &mut [f64],
         jacobians: Option<&mut Jacobians<'_>>,
     ) -> bool {
-        let psi = values.get(self.inverse_depth_point);
-        if psi.z.is_nan() || psi.z <= MIN_INVERSE_DEPTH {
-            return false;
-        }
-        let x = inverse_depth_to_point(psi);
-        let Some((z_hat, dz_dx)) = self.projector.project(&x) else {
+        let Some((z_hat, j)) = predict_inverse_depth(
+            &self.projector,
+            self.observer_from_anchor.as_ref(),
+            values.get(self.inverse_depth_point),
+        ) else {
             return false;
         };
         residual.copy_from_slice((z_hat - self.measurement).as_slice());
-        if let Some(j) = jacobians {
-            j.set(0, &(dz_dx * d_inverse_depth_to_point(psi)));
+        if let Some(jac) = jacobians {
+            jac.set(0, &j);
         }
         true
     }
@@ -331,13 +365,15 @@ mod tests {
                 projector: stereo,
             };
             assert_jacobians(&f, &values, "anchored stereo");
-            let f = AnchorObservation {
+            let f = InverseDepthObservation {
+                observer_from_anchor: None,
                 inverse_depth_point: p,
                 measurement: Vector2::new(310.0, 250.0),
                 projector: pinhole,
             };
             assert_jacobians(&f, &values, "anchor mono");
-            let f = AnchorObservation {
+            let f = InverseDepthObservation {
+                observer_from_anchor: None,
                 inverse_depth_point: p,
                 measurement: Vector3::new(310.0, 250.0, 300.0),
                 projector: stereo,
@@ -404,7 +440,8 @@ mod tests {
         );
         let at_infinity = values.add(Vector3::new(0.1, 0.1, 0.0));
         assert!(
-            !AnchorObservation {
+            !InverseDepthObservation {
+                observer_from_anchor: None,
                 inverse_depth_point: at_infinity,
                 measurement: Vector2::zeros(),
                 projector: pinhole
