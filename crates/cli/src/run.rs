@@ -243,6 +243,8 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
         stream,
     } = source;
     let config = settings.config.clone();
+    // The test switch is checked before any output is written.
+    let faults = test_faults()?;
     let output = RunOutput::create(
         &settings.out,
         OutputOptions {
@@ -288,7 +290,7 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
             vocabulary,
             // The keyframes' depth images only serve the dense model.
             keyframe_depth: settings.dense_ply,
-            faults: test_faults()?,
+            faults,
         },
     )?;
     // A monocular map has a scale of its own: it is compared after a similarity.

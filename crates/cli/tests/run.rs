@@ -218,3 +218,119 @@ fn the_demo_runs_the_live_system_on_a_rendered_room() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The lines of a TUM trajectory file: each `timestamp tx ty tz qx qy qz qw`, every number
+/// finite (panics naming the file otherwise).
+fn tum_lines(path: &std::path::Path) -> usize {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut n = 0;
+    for line in text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+    {
+        let values: Vec<f64> = line
+            .split_whitespace()
+            .map(|v| v.parse().unwrap_or(f64::NAN))
+            .collect();
+        assert!(
+            values.len() == 8 && values.iter().all(|v| v.is_finite()),
+            "{}: {line}",
+            path.display()
+        );
+        n += 1;
+    }
+    n
+}
+
+/// Ctrl-C (SIGINT) in the middle of a threaded run: the run stops at the next frame, the
+/// back-end's threads finish, and every output is written complete and parseable — the
+/// summary says it was interrupted and counts the frames processed, the trajectories hold
+/// their frames, the map and keyframes are there.
+#[test]
+fn an_interrupted_run_writes_complete_outputs() {
+    let Some(kitchen) = data::paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let dir = scratch("sigint");
+    let out = dir.join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dwslam"))
+        .args(["run", kitchen.to_str().unwrap(), "--quiet", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("the binary runs");
+    // Interrupted once 100 frames are in the frame-by-frame log.
+    let log = out.join("tracking_log.txt");
+    let start = std::time::Instant::now();
+    while std::fs::read_to_string(&log).map_or(0, |t| t.lines().count()) < 100 {
+        assert!(
+            start.elapsed().as_secs() < 120,
+            "100 frames within 2 minutes"
+        );
+        assert!(child.try_wait().unwrap().is_none(), "still running");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+            .expect("summary.json parses");
+    assert_eq!(summary["interrupted"], serde_json::Value::Bool(true));
+    let frames = summary["frames"].as_u64().unwrap() as usize;
+    assert!((100..1000).contains(&frames), "{frames} frames");
+    let posed = summary["frames_with_pose"].as_u64().unwrap() as usize;
+    assert_eq!(tum_lines(&out.join("trajectory.tum")), posed);
+    assert!(tum_lines(&out.join("trajectory_final.tum")) >= posed * 9 / 10);
+    assert!(tum_lines(&out.join("keyframes.tum")) > 0);
+    assert_eq!(
+        summary["frame_states"].as_array().map(Vec::len),
+        Some(frames),
+        "every frame's state"
+    );
+    let ply = std::fs::read(out.join("map.ply")).unwrap();
+    assert!(ply.starts_with(b"ply"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A back-end worker that dies in a run of the binary (the test switch `DWSLAM_TEST_FAULT`):
+/// the run completes, its summary carries the warning.
+#[test]
+fn a_run_whose_loop_closer_panics_completes_with_a_warning() {
+    let Some(kitti) = data::paths::require("kitti_odometry_snippets/KITTI_sequence_1") else {
+        return;
+    };
+    let dir = scratch("fault");
+    let out = dir.join("out");
+    let o = Command::new(env!("CARGO_BIN_EXE_dwslam"))
+        .args(["run", kitti.to_str().unwrap(), "--quiet", "--out"])
+        .arg(&out)
+        .env("DWSLAM_TEST_FAULT", "loops:panic:3")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let warnings = summary["warnings"].as_array().unwrap();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("loop closure thread panicked")),
+        "{warnings:?}"
+    );
+    assert_eq!(tum_lines(&out.join("trajectory.tum")), 51);
+    let bad = Command::new(env!("CARGO_BIN_EXE_dwslam"))
+        .args(["run", kitti.to_str().unwrap(), "--quiet", "--out"])
+        .arg(dir.join("bad"))
+        .env("DWSLAM_TEST_FAULT", "loops:explode:3")
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("DWSLAM_TEST_FAULT"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

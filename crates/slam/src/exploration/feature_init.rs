@@ -406,8 +406,8 @@ impl<P: Projector<N>, const N: usize> FeatureFilters<P, N> {
 mod tests {
     use super::*;
     use crate::factors::{InverseDepthObservation, point_to_inverse_depth};
-    use lsq::Values;
     use geom::{CameraModel, PinholeCamera, StereoCamera};
+    use lsq::Values;
     use lsq::numeric::check_jacobians;
     use nalgebra::{Vector2, Vector6};
     use rand::{Rng, SeedableRng};
