@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use system::place_recognition::{VocabularyOrigin, load_vocabulary};
+use system::vocabulary::{VocabularyOrigin, load_vocabulary};
 use system::{LiveRun, Mode, Options, RunGraph, RunResult, System, SystemConfig};
 
 /// Options of `dwslam run`.
@@ -1207,7 +1207,7 @@ fn timing_plots(out: &Path, result: &RunResult) -> Result<()> {
 
 /// `tracked_points.png`: per frame, the candidates visible, searched, found and inliers.
 fn tracked_points_plot(out: &Path, result: &RunResult) -> Result<()> {
-    let stat = |f: fn(&system::tracker::TrackerStats) -> usize| -> Vec<(f64, f64)> {
+    let stat = |f: fn(&system::TrackerStats) -> usize| -> Vec<(f64, f64)> {
         result
             .frames
             .iter()

@@ -1,13 +1,13 @@
 //! `dwslam vocabulary`: trains the binary bag-of-words vocabulary of place recognition (thesis
 //! §6.4.2) on images disjoint from the test sequences and writes it as a DBoW2 YAML file
-//! (`system::place_recognition::vocabulary`). Without images it trains the default vocabulary
+//! (`system::vocabulary`). Without images it trains the default vocabulary
 //! the live system would train itself, on the shared images that belong to no test sequence.
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use std::path::PathBuf;
-use system::place_recognition::PlaceRecognitionConfig;
-use system::place_recognition::vocabulary::{
+use system::PlaceRecognitionConfig;
+use system::vocabulary::{
     DEFAULT_TRAINING_SET, TrainingParams, TrainingSet, collect_images, default_training_images,
     save, train,
 };

@@ -12,26 +12,35 @@
 
 #![warn(missing_docs)]
 
-pub mod association;
 pub mod config;
 pub mod dense_model;
-pub(crate) mod depth;
-pub mod frame;
-pub mod keyframes;
-pub mod loops;
-pub(crate) mod mono;
-pub mod place_recognition;
-pub mod result;
-pub mod search;
-pub(crate) mod session;
+mod result;
 mod system;
-pub mod tracker;
+
+pub(crate) mod association;
+pub(crate) mod depth;
+pub(crate) mod frame;
+pub(crate) mod keyframes;
+pub(crate) mod loops;
+pub(crate) mod mono;
+pub(crate) mod place_recognition;
+pub(crate) mod search;
+pub(crate) mod session;
+pub(crate) mod tracker;
+
+#[cfg(test)]
+mod tests;
 
 pub use config::SystemConfig;
+pub use keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
+/// The vocabulary of place recognition: loading it, training it (`dwslam vocabulary`).
+pub use place_recognition::vocabulary;
+pub use place_recognition::{Alignment, OrbConfig, PlaceRecognitionConfig};
 pub use result::{
-    FrameReport, KeyframeNode, LiveRun, LockWaits, LoopEvent, Mode, NewMap, Progress, RefusedLoop,
-    Relocalisation, RunGraph, RunResult, SystemError,
+    FrameReport, KeyframeNode, LiveRun, LockWaits, LoopEvent, LoopEvidence, Mode, NewMap, Progress,
+    RefusedLoop, Relocalisation, RunGraph, RunResult, SystemError,
 };
 pub use session::backend::Fault;
 pub use session::sensor::Faults;
 pub use system::{Options, System};
+pub use tracker::TrackerStats;

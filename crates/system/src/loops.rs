@@ -183,16 +183,6 @@ impl LoopCloser {
         (self.recogniser.clone(), self.place.clone())
     }
 
-    /// Keyframes in the database.
-    pub fn len(&self) -> usize {
-        self.database().len()
-    }
-
-    /// `true` before the first keyframe.
-    pub fn is_empty(&self) -> bool {
-        self.database().is_empty()
-    }
-
     /// Adds `job`'s keyframe to the database and closes its loop, if it has one (see the
     /// [module docs](self)). Holds the graph's read lock to plan and match, its write lock
     /// only to insert the loop.

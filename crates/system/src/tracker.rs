@@ -65,8 +65,6 @@ pub struct Tracked {
     pub then: TrackedThen,
     /// Median depth of the found points (metres), for the keyframe criterion.
     pub median_depth: f64,
-    /// Where the prior came from.
-    pub prior: Option<Prior>,
     /// Counts.
     pub stats: TrackerStats,
     /// Time per stage.
@@ -349,7 +347,6 @@ impl Tracker {
             reference: candidates.reference,
             then: candidates.then,
             median_depth,
-            prior: Some(prior),
             stats,
             timings,
         })

@@ -9,7 +9,7 @@ use data::sequence::{BadFramePolicy, Frame, FrameImages, OpenOptions, Sequence};
 use lie::LieGroup;
 use std::path::{Path, PathBuf};
 use system::config::SystemConfig;
-use system::place_recognition::vocabulary::default_vocabulary;
+use system::vocabulary::default_vocabulary;
 use system::{LiveRun, Mode, Options, RunGraph, RunResult, System};
 
 fn seven_scenes() -> Option<PathBuf> {

@@ -7,7 +7,7 @@ use data::paths;
 use data::sequence::{Frame, OpenOptions, Sequence};
 use std::path::Path;
 use system::config::SystemConfig;
-use system::place_recognition::vocabulary::default_vocabulary;
+use system::vocabulary::default_vocabulary;
 use system::{LiveRun, Mode, Options, RunResult, System};
 
 /// The frames of the sequence at `path`, in order.

@@ -345,8 +345,7 @@ fn seven_scenes_with_loops() -> Option<(Sequence, impl Fn(SystemConfig) -> Syste
     let path = paths::require("seven_scenes_redkitchen_1000")?;
     let sequence = Sequence::open(&path, &OpenOptions::default()).unwrap();
     let camera = *sequence.info().camera.pinhole();
-    let vocabulary =
-        std::sync::Arc::new(system::place_recognition::vocabulary::default_vocabulary().unwrap());
+    let vocabulary = std::sync::Arc::new(system::vocabulary::default_vocabulary().unwrap());
     let system = move |config| mono(camera, config, "cut", Some(vocabulary.clone()));
     Some((sequence, system))
 }

@@ -7,7 +7,7 @@
 use data::camera::SensorModel;
 use data::paths;
 use data::sequence::{Frame, OpenOptions, Sequence};
-use system::place_recognition::vocabulary::default_vocabulary;
+use system::vocabulary::default_vocabulary;
 use system::{Fault, Faults, LiveRun, Mode, Options, RunResult, System, SystemConfig};
 
 /// The first `n` frames of `name` (`None` without the data), and its sensor (monocular: the

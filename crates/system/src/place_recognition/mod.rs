@@ -35,10 +35,9 @@ pub mod vocabulary;
 
 pub use features::KeyframeFeatures;
 pub use types::{
-    Alignment, LoopCandidate, LoopMatch, OrbConfig, PlaceRecognitionConfig, PlaceRecognitionError,
+    Alignment, LoopCandidate, OrbConfig, PlaceRecognitionConfig, PlaceRecognitionError,
 };
 pub use verify::Verification;
-pub use vocabulary::{LoadedVocabulary, VocabularyError, VocabularyOrigin, load_vocabulary};
 
 use geom::PinholeCamera;
 use nalgebra::Vector2;
@@ -105,26 +104,6 @@ impl PlaceRecognition {
         })
     }
 
-    /// The configuration.
-    pub fn config(&self) -> &PlaceRecognitionConfig {
-        &self.config
-    }
-
-    /// The vocabulary.
-    pub fn vocabulary(&self) -> &Arc<Vocabulary> {
-        &self.vocabulary
-    }
-
-    /// Keyframes in the database.
-    pub fn len(&self) -> usize {
-        self.keyframes.len()
-    }
-
-    /// `true` when no keyframe was added.
-    pub fn is_empty(&self) -> bool {
-        self.keyframes.is_empty()
-    }
-
     /// The features stored for a keyframe.
     pub fn features(&self, id: KeyframeId) -> Option<&KeyframeFeatures> {
         self.keyframes.get(&id).map(|e| &e.features)
@@ -132,7 +111,9 @@ impl PlaceRecognition {
 
     /// Extracts a keyframe's features (ORB, and the back-projected point of every keypoint
     /// where `depth(u, v)` gives metres; see [`features::extract`]) and adds it to the
-    /// database. Returns the number of keypoints with a 3D point.
+    /// database. Returns the number of keypoints with a 3D point. (The live system extracts
+    /// features outside the database's lock and [`insert`](Self::insert)s them.)
+    #[cfg(test)]
     pub fn add_keyframe(
         &mut self,
         id: KeyframeId,
@@ -181,20 +162,6 @@ impl PlaceRecognition {
         self.entry_keyframe.push(Some(id));
         self.keyframes.insert(id, Entry { features, bow });
         Ok(())
-    }
-
-    /// Removes a keyframe (culled from the map): it is never proposed again. `false` if it was
-    /// not in the database.
-    pub fn remove_keyframe(&mut self, id: KeyframeId) -> bool {
-        if self.keyframes.remove(&id).is_none() {
-            return false;
-        }
-        for e in self.entry_keyframe.iter_mut() {
-            if *e == Some(id) {
-                *e = None;
-            }
-        }
-        true
     }
 
     /// The loop of keyframe `query` with an old keyframe outside `excluded` (its topological

@@ -21,6 +21,8 @@
 //! not calibrated (PROVENANCE.md: the stated intrinsics are the depth camera's, and colour and
 //! depth are not registered), so correct loops err by a few cm and degrees.
 
+use crate::place_recognition::vocabulary::load_vocabulary;
+use crate::place_recognition::{PlaceRecognition, PlaceRecognitionConfig, Verification};
 use data::paths;
 use data::sequence::{FrameImages, OpenOptions, Sequence};
 use geom::{CameraModel, PinholeCamera};
@@ -30,9 +32,6 @@ use slam::map::KeyframeId;
 use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
-use system::place_recognition::{
-    PlaceRecognition, PlaceRecognitionConfig, Verification, load_vocabulary,
-};
 
 const EXCLUDED_FRAMES: usize = 60;
 /// Fraction of the old keyframe's surface the query must see for a true loop (a third: the
@@ -423,8 +422,8 @@ fn seven_scenes_revisits_every_fourth_frame() {
 /// depths come only from sparse samples (a map's points: every 24th pixel), the query's scaled
 /// by `drift` as if its map had drifted in scale. Returns the loop and the ground truth
 /// `query_from_old`.
-fn monocular_loop(drift: f64) -> Option<(system::place_recognition::LoopCandidate, Se3)> {
-    use system::place_recognition::Alignment;
+fn monocular_loop(drift: f64) -> Option<(crate::place_recognition::LoopCandidate, Se3)> {
+    use crate::place_recognition::Alignment;
     let root = paths::require("seven_scenes_redkitchen_1000")?;
     let data_root = paths::dataset_root()?;
     let config = PlaceRecognitionConfig {
@@ -548,7 +547,7 @@ fn database(frames: impl Iterator<Item = usize>) -> Option<Database> {
 /// wrong pose. (Verifying 10 hypotheses instead of 3 finds the same frames.)
 #[test]
 fn a_lost_frame_is_found_among_the_keyframes_at_its_true_pose() {
-    use system::place_recognition::features;
+    use crate::place_recognition::features;
     let Some(Database {
         seq,
         camera,
@@ -627,7 +626,7 @@ fn frames_without_depth_are_relocalised_by_p3p() {
         else {
             panic!("frame {index} should have no depth image");
         };
-        let features = system::place_recognition::features::extract(
+        let features = crate::place_recognition::features::extract(
             &image,
             |_, _| None,
             Vec::new(),

@@ -8,6 +8,8 @@
 //! the 0.3 % that both dwslam and ORB-SLAM3 are too long on the KITTI snippet (disparities
 //! 12–22 px) would take a bias of about 0.05 px.
 
+use crate::config::SystemConfig;
+use crate::frame::SensorFrontEnd;
 use lie::LieGroup;
 use nalgebra::Vector2;
 use sim::render::sensor::DEFAULT_STEREO_BASELINE;
@@ -15,8 +17,6 @@ use sim::render::{
     DEFAULT_REVISIT_JITTER, Renderer, SceneKind, SensorKind, SensorModel, Sequence, SequenceConfig,
     ViewOptions,
 };
-use system::config::SystemConfig;
-use system::frame::SensorFrontEnd;
 
 /// The errors (measured − true disparity, pixels) of the stereo measurements of the corners on
 /// smooth surfaces of `frames` frames spread over `scene`, block matching at `level`; and how
