@@ -105,16 +105,12 @@ impl DepthSensor {
         let pose = Sim3::identity();
         let (keyframe, _) = self.make_keyframe(ctx, frame, pose, Vec::new(), None, false)?;
         self.tracker.set_pose(frame, Se3::identity(), FIRST_MAP);
-        Ok(Step {
-            state: StepState::Good,
-            camera_from_world: Some(pose),
-            anchor: Some((keyframe, true)),
-            keyframe: Some((keyframe, KeyframeReason::First)),
-            stats: None,
-            time_tracking: Duration::ZERO,
-            relocalised: None,
-            earlier_keyframe: None,
-        })
+        Ok(Step::keyframe_made(
+            StepState::Good,
+            pose,
+            keyframe,
+            KeyframeReason::First,
+        ))
     }
 
     /// What follows a frame tracked (or relocalised): the reference for the next frame, the
@@ -520,18 +516,14 @@ impl Sensor<3> for DepthSensor {
         };
         self.tracker.set_pose(frame, pose.rigid_part(), now_in);
         // A weak state: the map goes on, but its place relative to the old one is a guess.
-        Ok(Some(Step {
-            state: StepState::Weak(format!(
+        Ok(Some(Step::keyframe_made(
+            StepState::Weak(format!(
                 "lost for {lost_for:.1} s: new map {map} started at the constant-velocity guess"
             )),
-            camera_from_world: Some(pose),
-            anchor: Some((keyframe, true)),
-            keyframe: Some((keyframe, KeyframeReason::NewMap)),
-            stats: None,
-            time_tracking: Duration::ZERO,
-            relocalised: None,
-            earlier_keyframe: None,
-        }))
+            pose,
+            keyframe,
+            KeyframeReason::NewMap,
+        )))
     }
 
     fn loop_data(&mut self, _: &mut Ctx, _: ()) {}

@@ -85,23 +85,11 @@ impl System {
             SensorModel::Mono(camera) => {
                 let graph = Arc::new(SharedGraph::new(SlamGraph::new()));
                 let mut mono = MonoSensor::new(*camera, &config);
-                let loops = match vocabulary {
-                    Some(vocabulary) => {
-                        let stage = mono.loop_stage(vocabulary, &config, store.clone());
-                        let template = stage.again();
-                        Some(Worker::new(
-                            "loop closure",
-                            graph.clone(),
-                            stage,
-                            Box::new(move || template.again()),
-                            threaded,
-                            config.loops.queue,
-                            false,
-                            options.faults.loops,
-                        ))
-                    }
-                    None => None,
-                };
+                let loops = vocabulary.map(|vocabulary| {
+                    let stage = mono.loop_stage(vocabulary, &config, store.clone());
+                    let template = stage.again();
+                    loop_worker(&graph, stage, move || template.again(), &config, &options)
+                });
                 let backend = Backend {
                     optimiser: None,
                     loops,
@@ -130,15 +118,12 @@ impl System {
                             .loop_closer(vocabulary, &config, store.clone())?
                             .waking(optimiser.sender());
                         let template = closer.again();
-                        Some(Worker::new(
-                            "loop closure",
-                            graph.clone(),
+                        Some(loop_worker(
+                            &graph,
                             closer,
-                            Box::new(move || template.again()),
-                            threaded,
-                            config.loops.queue,
-                            false,
-                            options.faults.loops,
+                            move || template.again(),
+                            &config,
+                            &options,
                         ))
                     }
                     None => None,
@@ -157,6 +142,27 @@ impl System {
     pub fn free_scale(&self) -> bool {
         matches!(self.0, Inner::Mono(_))
     }
+}
+
+/// The loop closer's worker on `graph`: `stage` in its thread (threaded mode) with a queue of
+/// `loops.queue` keyframes, or inline; `again` makes the stage anew if its thread dies with it.
+fn loop_worker<S: crate::session::backend::Stage<N>, const N: usize>(
+    graph: &Arc<SharedGraph<N>>,
+    stage: S,
+    again: impl Fn() -> S + Send + 'static,
+    config: &SystemConfig,
+    options: &Options,
+) -> Worker<S, N> {
+    Worker::new(
+        "loop closure",
+        graph.clone(),
+        stage,
+        Box::new(again),
+        options.mode == Mode::Threaded,
+        config.loops.queue,
+        false,
+        options.faults.loops,
+    )
 }
 
 impl LiveRun for System {

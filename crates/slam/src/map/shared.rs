@@ -92,28 +92,22 @@ fn record(wait: Duration) {
 /// panicking writer) is recovered: its holders keep their data consistent at every step that
 /// can panic.
 pub fn read_lock<T>(lock: &RwLock<T>) -> RwLockReadGuard<'_, T> {
-    match lock.try_read() {
-        Ok(guard) => {
-            record(Duration::ZERO);
-            guard
-        }
-        Err(TryLockError::Poisoned(e)) => {
-            record(Duration::ZERO);
-            e.into_inner()
-        }
-        Err(TryLockError::WouldBlock) => {
-            let t = Instant::now();
-            let guard = lock.read().unwrap_or_else(|e| e.into_inner());
-            record(t.elapsed());
-            guard
-        }
-    }
+    timed(lock.try_read(), || lock.read())
 }
 
 /// A write guard of `lock`, its wait recorded ([`record_lock_waits`]; poisoning as
 /// [`read_lock`]).
 pub fn write_lock<T>(lock: &RwLock<T>) -> RwLockWriteGuard<'_, T> {
-    match lock.try_write() {
+    timed(lock.try_write(), || lock.write())
+}
+
+/// The guard of a lock taken at once (`tried`), or after waiting for it (`block`), the wait
+/// recorded; a poisoned lock recovered.
+fn timed<G>(
+    tried: std::sync::TryLockResult<G>,
+    block: impl FnOnce() -> std::sync::LockResult<G>,
+) -> G {
+    match tried {
         Ok(guard) => {
             record(Duration::ZERO);
             guard
@@ -124,7 +118,7 @@ pub fn write_lock<T>(lock: &RwLock<T>) -> RwLockWriteGuard<'_, T> {
         }
         Err(TryLockError::WouldBlock) => {
             let t = Instant::now();
-            let guard = lock.write().unwrap_or_else(|e| e.into_inner());
+            let guard = block().unwrap_or_else(|e| e.into_inner());
             record(t.elapsed());
             guard
         }

@@ -71,6 +71,25 @@ impl Step {
         }
     }
 
+    /// A frame made keyframe `keyframe` (for `reason`) at `camera_from_world`, in `state`.
+    pub fn keyframe_made(
+        state: StepState,
+        camera_from_world: Sim3,
+        keyframe: KeyframeId,
+        reason: KeyframeReason,
+    ) -> Self {
+        Step {
+            state,
+            camera_from_world: Some(camera_from_world),
+            anchor: Some((keyframe, true)),
+            keyframe: Some((keyframe, reason)),
+            stats: None,
+            time_tracking: Duration::ZERO,
+            relocalised: None,
+            earlier_keyframe: None,
+        }
+    }
+
     pub(super) fn tracked(&self) -> bool {
         matches!(self.state, StepState::Good | StepState::Weak(_))
     }
