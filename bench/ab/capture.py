@@ -13,6 +13,9 @@ symbolic links), and with `--set full` or `rendered` the renders in $RENDERED (d
 """
 import argparse, hashlib, json, os, subprocess, sys, time, glob
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "live"))
+import cuts  # noqa: E402
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.environ.get("DWSLAM_DATA", os.path.normpath(os.path.join(HERE, "../../../shared/data")))
 R = os.environ.get("RENDERED", "/work/renders")
@@ -21,45 +24,12 @@ CUTS = os.path.join(ROOT, "sequences")
 SEVEN = os.path.join(DATA, "seven_scenes_redkitchen_1000")
 
 
-def frame_number(line):
-    import re
-    return int(re.search(r"frame-(\d+)", line).group(1))
-
-
 def seven_cut(name, first, last):
-    seq = os.path.join(CUTS, name, "seven_scenes_redkitchen_1000")
-    os.makedirs(seq, exist_ok=True)
-    for f in ["rgb", "depth", "pose", "camera-intrinsics.txt", "gravity-direction.txt", "groundtruth_tum.txt"]:
-        link = os.path.join(seq, f)
-        if not os.path.lexists(link):
-            os.symlink(os.path.join(SEVEN, f), link)
-    for f in ["rgb.txt", "depth.txt", "associations.txt"]:
-        with open(os.path.join(SEVEN, f)) as src, open(os.path.join(seq, f), "w") as dst:
-            for line in src:
-                if line.startswith("#") or not line.strip() or not first <= frame_number(line) <= last:
-                    dst.write(line)
-    return seq
+    return cuts.seven_scenes_cut(os.path.join(CUTS, name), SEVEN, first, last)
 
 
 def kitti_cut(name, source, first, last):
-    seq = os.path.join(CUTS, name)
-    for cam in ["image_0", "image_1"]:
-        os.makedirs(os.path.join(seq, cam), exist_ok=True)
-    times = [l for l in open(os.path.join(source, "times.txt")) if l.strip()]
-    poses = [l for l in open(os.path.join(source, "poses.txt")) if l.strip()]
-    keep = [i for i in range(len(times)) if not first <= i <= last]
-    with open(os.path.join(seq, "times.txt"), "w") as ft, open(os.path.join(seq, "poses.txt"), "w") as fp:
-        for j, i in enumerate(keep):
-            ft.write(times[i])
-            fp.write(poses[i])
-            for cam in ["image_0", "image_1"]:
-                link = os.path.join(seq, cam, f"{j:06d}.png")
-                if not os.path.lexists(link) and os.path.exists(os.path.join(source, cam, f"{i:06d}.png")):
-                    os.symlink(os.path.join(source, cam, f"{i:06d}.png"), link)
-    link = os.path.join(seq, "calib.txt")
-    if not os.path.lexists(link):
-        os.symlink(os.path.join(source, "calib.txt"), link)
-    return seq
+    return cuts.kitti_cut(os.path.join(CUTS, name), source, first, last)
 
 
 def new_map_now():

@@ -36,6 +36,9 @@ import re
 import subprocess
 import sys
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import cuts  # noqa: E402
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "../.."))
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -54,48 +57,15 @@ evo = os.path.join(a.venv, "bin", "evo_ape")
 SEVEN = os.path.join(a.data, "seven_scenes_redkitchen_1000")
 
 
-def frame_number(line):
-    """7-Scenes list line -> its frame number (`rgb/frame-000123.color.jpg` -> 123)."""
-    return int(re.search(r"frame-(\d+)", line).group(1))
-
-
 def seven_scenes_cut(name, first, last):
     """7-Scenes without frames first..=last: a dwslam folder and run_peer.py's data root."""
     root = os.path.join(a.out, "sequences", name)
-    seq = os.path.join(root, "seven_scenes_redkitchen_1000")
-    os.makedirs(seq, exist_ok=True)
-    for f in ["rgb", "depth", "pose", "camera-intrinsics.txt", "gravity-direction.txt", "groundtruth_tum.txt"]:
-        link = os.path.join(seq, f)
-        if not os.path.lexists(link):
-            os.symlink(os.path.join(SEVEN, f), link)
-    for f in ["rgb.txt", "depth.txt", "associations.txt"]:
-        with open(os.path.join(SEVEN, f)) as src, open(os.path.join(seq, f), "w") as dst:
-            for line in src:
-                if line.startswith("#") or not line.strip() or not first <= frame_number(line) <= last:
-                    dst.write(line)
-    return seq, root
+    return cuts.seven_scenes_cut(root, SEVEN, first, last), root
 
 
 def kitti_cut(name, source, first, last):
     """A KITTI-layout folder without frames first..=last (renumbered links)."""
-    seq = os.path.join(a.out, "sequences", name)
-    for cam in ["image_0", "image_1"]:
-        os.makedirs(os.path.join(seq, cam), exist_ok=True)
-    times = [l for l in open(os.path.join(source, "times.txt")) if l.strip()]
-    poses = [l for l in open(os.path.join(source, "poses.txt")) if l.strip()]
-    keep = [i for i in range(len(times)) if not first <= i <= last]
-    with open(os.path.join(seq, "times.txt"), "w") as ft, open(os.path.join(seq, "poses.txt"), "w") as fp:
-        for j, i in enumerate(keep):
-            ft.write(times[i])
-            fp.write(poses[i])
-            for cam in ["image_0", "image_1"]:
-                link = os.path.join(seq, cam, f"{j:06d}.png")
-                if not os.path.lexists(link):
-                    os.symlink(os.path.join(source, cam, f"{i:06d}.png"), link)
-    link = os.path.join(seq, "calib.txt")
-    if not os.path.lexists(link):
-        os.symlink(os.path.join(source, "calib.txt"), link)
-    return seq
+    return cuts.kitti_cut(os.path.join(a.out, "sequences", name), source, first, last)
 
 
 def ate(gt, est, mono=False):
