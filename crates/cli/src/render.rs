@@ -8,9 +8,7 @@ use data::dataset_writer::{EurocWriter, KittiWriter, TumWriter};
 use geom::RadTan;
 use nalgebra::Vector3;
 use sim::render::sensor::{ExposureChanges, MotionBlur};
-use sim::render::{
-    Frame, FrameImages, SceneKind, SensorKind, SensorModel, Sequence, SequenceConfig,
-};
+use sim::render::{Frame, FrameImages, SceneKind, SensorKind, Sequence, SequenceConfig};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -23,6 +21,9 @@ pub enum SceneArg {
     Building,
     /// A courtyard between façades, three laps at 20 Hz (≈ 3480 frames by default).
     Courtyard,
+    /// A town of street blocks, a 1.74 km drive with two loops at 10 Hz (≈ 1700 frames by
+    /// default; KITTI's image size, focal length and stereo baseline by default).
+    Town,
 }
 
 /// The sensors.
@@ -51,7 +52,7 @@ pub enum LayoutArg {
 /// Options of `dwslam render`.
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// The world: room, building or courtyard.
+    /// The world: room, building, courtyard or town.
     #[arg(value_enum)]
     pub scene: SceneArg,
     /// The sensor.
@@ -71,19 +72,21 @@ pub struct RenderArgs {
     /// The order of the views, the hand's shake and the roll are unchanged.
     #[arg(long, value_name = "F", allow_negative_numbers = true)]
     pub revisit_jitter: Option<f64>,
-    /// Output layout (default: tum for rgbd, euroc for stereo, kitti for mono).
+    /// Output layout (default: tum for rgbd, euroc for stereo, kitti for mono; kitti for the
+    /// town's mono and stereo).
     #[arg(long, value_enum)]
     pub layout: Option<LayoutArg>,
-    /// Image size WIDTHxHEIGHT (the focal length scales with the width: 525 px at 640).
-    #[arg(long, default_value = "640x480")]
-    pub size: String,
+    /// Image size WIDTHxHEIGHT (default 640x480, the town's 1241x376); the focal length scales
+    /// with the width: 525 px at 640, the town's 707.09 px at 1241 (KITTI's).
+    #[arg(long)]
+    pub size: Option<String>,
     /// Output directory (created; must be empty if it exists).
     #[arg(long)]
     pub out: PathBuf,
-    /// Stereo baseline in metres (EuRoC's VI-sensor: 0.11); for mono KITTI output, the rig's
-    /// right camera stated in calib.txt's P1.
-    #[arg(long, default_value_t = sim::render::sensor::DEFAULT_STEREO_BASELINE)]
-    pub baseline: f64,
+    /// Stereo baseline in metres (default EuRoC's VI-sensor: 0.11; the town KITTI's 0.54); for
+    /// mono KITTI output, the rig's right camera stated in calib.txt's P1.
+    #[arg(long)]
+    pub baseline: Option<f64>,
     /// Radial-tangential distortion K1,K2,P1,P2 of the rendered images (EuRoC cam0:
     /// -0.2834,0.0740,0.0002,0.00002).
     #[arg(long, value_name = "K1,K2,P1,P2", allow_hyphen_values = true)]
@@ -187,11 +190,16 @@ fn revisit_jitter(scene: SceneArg, value: Option<f64>) -> Result<f64> {
 }
 
 /// The layout a sensor is written in by default, and whether a layout fits a sensor.
-fn layout_for(sensor: SensorArg, layout: Option<LayoutArg>, distorted: bool) -> Result<LayoutArg> {
+fn layout_for(
+    scene: SceneArg,
+    sensor: SensorArg,
+    layout: Option<LayoutArg>,
+    distorted: bool,
+) -> Result<LayoutArg> {
     let layout = layout.unwrap_or(match sensor {
         SensorArg::Rgbd => LayoutArg::Tum,
-        SensorArg::Stereo => LayoutArg::Euroc,
-        SensorArg::Mono => LayoutArg::Kitti,
+        SensorArg::Stereo if scene != SceneArg::Town || distorted => LayoutArg::Euroc,
+        SensorArg::Stereo | SensorArg::Mono => LayoutArg::Kitti,
     });
     match (layout, sensor) {
         (LayoutArg::Tum, SensorArg::Rgbd) => {}
@@ -271,9 +279,22 @@ impl Writer {
 /// Runs `dwslam render`.
 pub fn run(args: RenderArgs) -> Result<()> {
     // Everything is checked before any work starts.
-    let (width, height) = parse_size(&args.size)?;
+    let scene = match args.scene {
+        SceneArg::Room => SceneKind::Room,
+        SceneArg::Building => SceneKind::Building,
+        SceneArg::Courtyard => SceneKind::Courtyard,
+        SceneArg::Town => SceneKind::Town,
+    };
+    let (width, height) = match &args.size {
+        Some(size) => parse_size(size)?,
+        None => scene.default_size(),
+    };
     let distortion = args.radtan.as_deref().map(parse_radtan).transpose()?;
-    let layout = layout_for(args.sensor, args.layout, distortion.is_some())?;
+    let layout = layout_for(args.scene, args.sensor, args.layout, distortion.is_some())?;
+    let baseline = args.baseline.unwrap_or(match scene {
+        SceneKind::Town => 0.54,
+        _ => sim::render::sensor::DEFAULT_STEREO_BASELINE,
+    });
     if args.frames == Some(0) {
         bail!("--frames must be at least 1");
     }
@@ -282,16 +303,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
     {
         bail!("--threads must be at least 1");
     }
-    crate::args::positive(args.baseline, "--baseline (metres)")?;
+    crate::args::positive(baseline, "--baseline (metres)")?;
     let revisit_jitter = revisit_jitter(args.scene, args.revisit_jitter)?;
     let kind = match args.sensor {
         SensorArg::Mono => SensorKind::Mono,
-        SensorArg::Stereo => SensorKind::Stereo {
-            baseline: args.baseline,
-        },
+        SensorArg::Stereo => SensorKind::Stereo { baseline },
         SensorArg::Rgbd => SensorKind::Rgbd,
     };
-    let mut sensor = SensorModel::new(kind, width, height);
+    let mut sensor = scene.sensor(kind, width, height);
     sensor.camera.distortion = distortion;
     sensor.supersampling = args.supersampling;
     if args.no_noise {
@@ -313,11 +332,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
             ..MotionBlur::default()
         });
     }
-    let scene = match args.scene {
-        SceneArg::Room => SceneKind::Room,
-        SceneArg::Building => SceneKind::Building,
-        SceneArg::Courtyard => SceneKind::Courtyard,
-    };
     let mut sequence = Sequence::new(SequenceConfig {
         scene,
         sensor,
@@ -354,7 +368,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let mut writer = match layout {
         LayoutArg::Tum => Writer::Tum(TumWriter::create(&args.out, &name, &calibration, rate)?),
         LayoutArg::Euroc => {
-            let baseline = matches!(kind, SensorKind::Stereo { .. }).then_some(args.baseline);
+            let baseline = matches!(kind, SensorKind::Stereo { .. }).then_some(baseline);
             Writer::Euroc(EurocWriter::create(
                 &args.out,
                 &calibration,
@@ -365,7 +379,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         LayoutArg::Kitti => Writer::Kitti(KittiWriter::create(
             &args.out,
             &calibration,
-            args.baseline,
+            baseline,
             matches!(kind, SensorKind::Stereo { .. }),
         )?),
     };
@@ -483,24 +497,51 @@ mod tests {
         assert!(revisit_jitter(SceneArg::Courtyard, Some(0.25)).is_err());
         assert_eq!(revisit_jitter(SceneArg::Building, None).unwrap(), 1.0);
         assert_eq!(
-            layout_for(SensorArg::Rgbd, None, false).unwrap(),
+            layout_for(SceneArg::Room, SensorArg::Rgbd, None, false).unwrap(),
             LayoutArg::Tum
         );
         assert_eq!(
-            layout_for(SensorArg::Stereo, None, false).unwrap(),
+            layout_for(SceneArg::Room, SensorArg::Stereo, None, false).unwrap(),
             LayoutArg::Euroc
         );
         assert_eq!(
-            layout_for(SensorArg::Mono, None, false).unwrap(),
+            layout_for(SceneArg::Room, SensorArg::Mono, None, false).unwrap(),
             LayoutArg::Kitti
         );
-        assert!(layout_for(SensorArg::Mono, Some(LayoutArg::Tum), false).is_err());
-        assert!(layout_for(SensorArg::Rgbd, Some(LayoutArg::Kitti), false).is_err());
-        assert!(layout_for(SensorArg::Stereo, Some(LayoutArg::Kitti), true).is_err());
-        assert!(layout_for(SensorArg::Mono, None, true).is_err());
+        assert!(layout_for(SceneArg::Room, SensorArg::Mono, Some(LayoutArg::Tum), false).is_err());
+        assert!(
+            layout_for(
+                SceneArg::Room,
+                SensorArg::Rgbd,
+                Some(LayoutArg::Kitti),
+                false
+            )
+            .is_err()
+        );
+        assert!(
+            layout_for(
+                SceneArg::Room,
+                SensorArg::Stereo,
+                Some(LayoutArg::Kitti),
+                true
+            )
+            .is_err()
+        );
+        assert!(layout_for(SceneArg::Room, SensorArg::Mono, None, true).is_err());
         assert_eq!(
-            layout_for(SensorArg::Mono, Some(LayoutArg::Euroc), true).unwrap(),
+            layout_for(
+                SceneArg::Room,
+                SensorArg::Mono,
+                Some(LayoutArg::Euroc),
+                true
+            )
+            .unwrap(),
             LayoutArg::Euroc
+        );
+        // The town's stereo rig is KITTI's, written in KITTI's layout.
+        assert_eq!(
+            layout_for(SceneArg::Town, SensorArg::Stereo, None, false).unwrap(),
+            LayoutArg::Kitti
         );
     }
 }

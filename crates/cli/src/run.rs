@@ -7,7 +7,7 @@ use crate::plot::{self, Figure, GREY, PALETTE, Series, Style};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use data::camera::SensorModel;
-use data::eval::{Alignment, ate, rpe};
+use data::eval::{Alignment, KITTI_SEGMENT_LENGTHS, ate, drift, rpe};
 use data::output::{OutputOptions, RunOutput, TrackingState};
 use data::sequence::{BadFramePolicy, Frame, FrameError, OpenOptions, Sequence, SequenceFormat};
 use data::trajectory::{Trajectory, associate, write_tum};
@@ -844,6 +844,8 @@ fn evaluate(gt: &Trajectory, result: &RunResult, alignment: Alignment) -> Evalua
             continue;
         };
         let rp = rpe(&r, &e, 1, false, alignment).ok();
+        // KITTI's drift per distance, on paths long enough for a 100 m segment.
+        let dr = drift(&r, &e, &KITTI_SEGMENT_LENGTHS, 10, alignment).ok();
         lines.push(format!(
             "{name} trajectory ({} of {} frames with ground truth): ATE RMSE {:.2} cm (median {:.2}, max {:.2}), RPE {}",
             pairs.len(),
@@ -856,7 +858,13 @@ fn evaluate(gt: &Trajectory, result: &RunResult, alignment: Alignment) -> Evalua
                 p.translation.rmse * 1e3,
                 p.rotation_rad.rmse.to_degrees()
             ))
-        ));
+        ) + &dr.as_ref().map_or(String::new(), |d| format!(
+            ", drift {:.2} % and {:.3}°/100 m (KITTI's relative error over {}–{} m)",
+            d.translation_percent,
+            d.rotation_deg_per_100m,
+            d.per_length[0].0,
+            d.per_length[d.per_length.len() - 1].0
+        )));
         json.insert(
             name.into(),
             json!({
@@ -866,6 +874,8 @@ fn evaluate(gt: &Trajectory, result: &RunResult, alignment: Alignment) -> Evalua
                 "ate_max_m": a.translation.max,
                 "rpe_translation_rmse_m": rp.as_ref().map(|p| p.translation.rmse),
                 "rpe_rotation_rmse_deg": rp.as_ref().map(|p| p.rotation_rad.rmse.to_degrees()),
+                "drift_translation_percent": dr.as_ref().map(|d| d.translation_percent),
+                "drift_rotation_deg_per_100m": dr.as_ref().map(|d| d.rotation_deg_per_100m),
                 "alignment": alignment_name(alignment),
             }),
         );

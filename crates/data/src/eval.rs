@@ -12,6 +12,12 @@
 //!   default), or all `(i, i + delta)` — the error
 //!   `E_ij = (P_i⁻¹·P_j)⁻¹ · (P̂_i⁻¹·P̂_j)` (after alignment), with translation error `‖t(E_ij)‖`
 //!   and rotation error `angle(R(E_ij))` in radians.
+//! * **Drift per distance** ([`drift`]): the KITTI odometry benchmark's relative error — for
+//!   segments starting every 10th pose and `L` metres of ground-truth path long
+//!   (100, 200, …, 800 m), `E = (P_i⁻¹·P_j)⁻¹·(P̂_i⁻¹·P̂_j)` with `j` the first pose `L` metres
+//!   beyond `i`; the translation error `‖t(E)‖/L` (as a percentage) and the rotation error
+//!   `angle(R(E))/L` (degrees per 100 m), averaged over every segment of every length (after
+//!   `alignment`, which acts through its scale alone).
 //!
 //! The inputs are already associated pose lists of equal length (see
 //! [`trajectory::associate_trajectories`](crate::trajectory::associate_trajectories)).
@@ -132,6 +138,83 @@ pub struct RpeResult {
     pub translation_errors: Vec<f64>,
     /// `angle(R(E_ij))` per pair, radians.
     pub rotation_errors_rad: Vec<f64>,
+}
+
+/// The result of [`drift`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct DriftResult {
+    /// Mean translation error over every segment, percent of the segment's length.
+    pub translation_percent: f64,
+    /// Mean rotation error over every segment, degrees per 100 m.
+    pub rotation_deg_per_100m: f64,
+    /// Per segment length: `(length m, segments, translation %, rotation °/100 m)`.
+    pub per_length: Vec<(f64, usize, f64, f64)>,
+}
+
+/// The segment lengths of the KITTI odometry benchmark (m).
+pub const KITTI_SEGMENT_LENGTHS: [f64; 8] =
+    [100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0];
+
+/// Drift per distance travelled, the KITTI odometry benchmark's relative error (see the
+/// [module docs](self)): segments start every `step` poses (KITTI: 10 frames); the lengths
+/// without any segment (longer than the path) are left out. An error if no length fits.
+pub fn drift(
+    reference: &[Se3],
+    estimate: &[Se3],
+    lengths: &[f64],
+    step: usize,
+    alignment: Alignment,
+) -> Result<DriftResult, EvalError> {
+    let s = align(reference, estimate, alignment)?;
+    let aligned: Vec<Se3> = estimate.iter().map(|e| apply_similarity(&s, e)).collect();
+    let mut path = Vec::with_capacity(reference.len());
+    let mut d = 0.0;
+    for (k, r) in reference.iter().enumerate() {
+        if k > 0 {
+            d += (r.translation() - reference[k - 1].translation()).norm();
+        }
+        path.push(d);
+    }
+    let (mut t_all, mut r_all, mut n_all) = (0.0, 0.0, 0usize);
+    let mut per_length = Vec::new();
+    for &length in lengths {
+        let (mut t_sum, mut r_sum, mut n) = (0.0, 0.0, 0usize);
+        for i in (0..reference.len()).step_by(step.max(1)) {
+            let j = i + path[i..].partition_point(|&x| x <= path[i] + length);
+            if j >= reference.len() {
+                break;
+            }
+            let truth = reference[i].inverse().compose(&reference[j]);
+            let est = aligned[i].inverse().compose(&aligned[j]);
+            let e = truth.inverse().compose(&est);
+            t_sum += e.translation().norm() / length;
+            r_sum += e.rotation().angle().to_degrees() / length;
+            n += 1;
+        }
+        if n > 0 {
+            per_length.push((
+                length,
+                n,
+                100.0 * t_sum / n as f64,
+                100.0 * r_sum / n as f64,
+            ));
+            (t_all, r_all, n_all) = (t_all + t_sum, r_all + r_sum, n_all + n);
+        }
+    }
+    if n_all == 0 {
+        return Err(EvalError::Empty {
+            what: format!(
+                "no segment of {} m on a path of {:.1} m",
+                lengths.first().copied().unwrap_or(0.0),
+                path.last().copied().unwrap_or(0.0)
+            ),
+        });
+    }
+    Ok(DriftResult {
+        translation_percent: 100.0 * t_all / n_all as f64,
+        rotation_deg_per_100m: 100.0 * r_all / n_all as f64,
+        per_length,
+    })
 }
 
 /// `S·P`: a similarity applied to a rigid pose (rotation `R_S·R_P`, translation
@@ -346,4 +429,80 @@ pub fn rpe_matrices(
         translation_errors: translation,
         rotation_errors_rad: rotation,
     })
+}
+
+#[cfg(test)]
+mod drift_tests {
+    use super::*;
+    use lie::So3;
+
+    /// A straight drive along x at 1 m per pose, looking along x.
+    fn straight(n: usize) -> Vec<Se3> {
+        (0..n)
+            .map(|k| Se3::new(So3::identity(), Vector3::new(k as f64, 0.0, 0.0)))
+            .collect()
+    }
+
+    #[test]
+    fn drift_of_known_scale_and_heading_errors() {
+        let truth = straight(1001);
+        // 2 % too long, unaligned: every segment 2 % off, no rotation error.
+        let long: Vec<Se3> = truth
+            .iter()
+            .map(|p| Se3::new(*p.rotation(), p.translation() * 1.02))
+            .collect();
+        // (KITTI divides by the nominal length L; the segment's end, the first pose beyond
+        // L metres, is L + 1 metres on: 2 %·(1 + 1/L).)
+        let d = drift(&truth, &long, &KITTI_SEGMENT_LENGTHS, 10, Alignment::None).unwrap();
+        for &(length, _, t, r) in &d.per_length {
+            assert!((t - 2.0 * (1.0 + 1.0 / length)).abs() < 1e-9, "{d:?}");
+            assert!(r.abs() < 1e-9);
+        }
+        assert!(
+            d.translation_percent > 2.0 && d.translation_percent < 2.02,
+            "{d:?}"
+        );
+        assert_eq!(d.per_length.len(), 8);
+        // Segments of 100 m start every 10 poses until 100 m before the end: 90 of them
+        // (j, the first pose beyond i + L, is i + L + 1).
+        assert_eq!(d.per_length[0].1, 90);
+        // With a Sim(3) alignment a scale error is gone (on a curved drive: a straight one has
+        // no alignment).
+        let curved: Vec<Se3> = (0..1001)
+            .map(|k| {
+                let a = k as f64 / 300.0;
+                Se3::new(
+                    So3::rot_z(a),
+                    Vector3::new(300.0 * a.sin(), 300.0 * (1.0 - a.cos()), 0.0),
+                )
+            })
+            .collect();
+        let scaled: Vec<Se3> = curved
+            .iter()
+            .map(|p| Se3::new(*p.rotation(), p.translation() * 1.02))
+            .collect();
+        let d = drift(
+            &curved,
+            &scaled,
+            &KITTI_SEGMENT_LENGTHS,
+            10,
+            Alignment::Sim3,
+        )
+        .unwrap();
+        assert!(d.translation_percent < 1e-6, "{d:?}");
+        let d = drift(&curved, &scaled, &KITTI_SEGMENT_LENGTHS, 10, Alignment::Se3).unwrap();
+        // (2 % of each chord, shorter than the L metres of arc it is divided by.)
+        assert!(d.translation_percent > 1.4 && d.translation_percent < 2.02, "{d:?}");
+        // A heading that turns 0.01° per metre: a segment of L metres ends turned by 0.01·(L+1)°
+        // (j is one pose beyond L), 1°(1 + 1/L) per 100 m; positions unchanged.
+        let turning: Vec<Se3> = truth
+            .iter()
+            .enumerate()
+            .map(|(k, p)| Se3::new(So3::rot_z((0.01 * k as f64).to_radians()), *p.translation()))
+            .collect();
+        let d = drift(&truth, &turning, &[100.0], 10, Alignment::None).unwrap();
+        assert!((d.rotation_deg_per_100m - 1.01).abs() < 1e-9, "{d:?}");
+        // A path shorter than every length: an error, not a zero.
+        assert!(drift(&truth[..50], &long[..50], &[100.0], 10, Alignment::None).is_err());
+    }
 }

@@ -4,12 +4,14 @@
 
 use sim::render::quality::{COVERAGE_DEPTH, FAST_THRESHOLD, PairQuality, SELECTED, pair_quality};
 use sim::render::sensor::SensorKind;
-use sim::render::{FrameImages, SceneKind, SensorModel, Sequence, SequenceConfig};
+use sim::render::{FrameImages, SceneKind, Sequence, SequenceConfig};
 
+/// The scene's sequence at its default image size (640×480; the town's 1241×376).
 fn sequence(scene: SceneKind, kind: SensorKind, seed: u64) -> Sequence {
+    let (w, h) = scene.default_size();
     Sequence::new(SequenceConfig {
         scene,
-        sensor: SensorModel::new(kind, 640, 480),
+        sensor: scene.sensor(kind, w, h),
         seed,
         frames: None,
         revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
@@ -35,6 +37,7 @@ fn same_seed_same_bytes_different_seed_different_images() {
         (SceneKind::Room, SensorKind::Rgbd),
         (SceneKind::Courtyard, SensorKind::Stereo { baseline: 0.2 }),
         (SceneKind::Building, SensorKind::Mono),
+        (SceneKind::Town, SensorKind::Stereo { baseline: 0.54 }),
     ] {
         let frames = [0usize, 37];
         // Rendered in one sequence, in order, on rayon's pool.
@@ -101,6 +104,17 @@ fn trackability(scene: SceneKind, step: usize) -> Vec<(usize, PairQuality)> {
     out
 }
 
+/// The largest median error of translational LK against the ground-truth flow of a pair: 0.1 px
+/// for the hand-held and walking scenes at 20–30 Hz; 1 px for the town's drive at 10 Hz, whose
+/// road and near façades deform between frames by much more than a translation (KITTI's frames
+/// alike): 0.34 px median over the default drive's every 250th pair, 0.79 px at most.
+fn max_lk_error(scene: SceneKind) -> f64 {
+    match scene {
+        SceneKind::Town => 1.0,
+        _ => 0.1,
+    }
+}
+
 fn check(scene: SceneKind, results: &[(usize, PairQuality)]) {
     let min_corners = results.iter().map(|r| r.1.corners).min().unwrap();
     let min_coverage = results.iter().map(|r| r.1.coverage).fold(1.0, f64::min);
@@ -134,7 +148,7 @@ fn check(scene: SceneKind, results: &[(usize, PairQuality)]) {
             q.tracked
         );
         assert!(
-            q.lk_median_error <= 0.1,
+            q.lk_median_error <= max_lk_error(scene),
             "{scene:?} frame {k}: LK median error {:.3} px",
             q.lk_median_error
         );
@@ -142,19 +156,19 @@ fn check(scene: SceneKind, results: &[(usize, PairQuality)]) {
 }
 
 #[test]
-fn room_and_courtyard_are_trackable() {
-    for scene in [SceneKind::Room, SceneKind::Courtyard] {
+fn room_courtyard_and_town_are_trackable() {
+    for scene in [SceneKind::Room, SceneKind::Courtyard, SceneKind::Town] {
         let results = trackability(scene, 250);
         check(scene, &results);
     }
 }
 
-/// The full measurement: every 10th frame pair of the default sequences (~560 pairs, a few
+/// The full measurement: every 10th frame pair of the default sequences (~740 pairs, a few
 /// minutes).
 #[test]
 #[ignore]
-fn room_and_courtyard_are_trackable_everywhere() {
-    for scene in [SceneKind::Room, SceneKind::Courtyard] {
+fn room_courtyard_and_town_are_trackable_everywhere() {
+    for scene in [SceneKind::Room, SceneKind::Courtyard, SceneKind::Town] {
         let results = trackability(scene, 10);
         check(scene, &results);
     }

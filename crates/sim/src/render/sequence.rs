@@ -1,7 +1,8 @@
 //! A rendered sequence: a world, a trajectory through it and a sensor, frame by frame, with the
 //! ground-truth pose of the (left) camera at every frame's timestamp.
 
-use super::paths::{BuildingWalk, CameraPath, CourtyardLaps, RoomBrowse};
+use super::camera::FOCAL_AT_640;
+use super::paths::{BuildingWalk, CameraPath, CourtyardLaps, RoomBrowse, TownDrive};
 use super::raycast::ViewOptions;
 use super::sensor::{self, FrameImages, SensorKind, SensorModel};
 use super::{RenderError, Renderer, worlds};
@@ -21,18 +22,27 @@ pub enum SceneKind {
     Building,
     /// The courtyard, three laps at 20 Hz by default.
     Courtyard,
+    /// The town, a 1.74 km drive with two loops at 10 Hz (as KITTI) from a car's forward
+    /// camera with KITTI's image size and focal length.
+    Town,
 }
 
 impl SceneKind {
     /// All scenes.
-    pub const ALL: [SceneKind; 3] = [SceneKind::Room, SceneKind::Building, SceneKind::Courtyard];
+    pub const ALL: [SceneKind; 4] = [
+        SceneKind::Room,
+        SceneKind::Building,
+        SceneKind::Courtyard,
+        SceneKind::Town,
+    ];
 
-    /// The scene's name (`room`, `building`, `courtyard`).
+    /// The scene's name (`room`, `building`, `courtyard`, `town`).
     pub fn name(&self) -> &'static str {
         match self {
             SceneKind::Room => "room",
             SceneKind::Building => "building",
             SceneKind::Courtyard => "courtyard",
+            SceneKind::Town => "town",
         }
     }
 
@@ -40,18 +50,21 @@ impl SceneKind {
     /// middle of the 10–20 Hz of walking and driving datasets: KITTI 10 Hz, EuRoC 20 Hz); 20 for
     /// the courtyard laps, whose default sensor is EuRoC-like stereo (at 15 Hz the ground's
     /// perspective change between frames, 9 cm of walk, pushed the translational LK's median
-    /// error against the ground truth to 0.08–0.10 px on some pairs; 0.05–0.08 at 20 Hz).
+    /// error against the ground truth to 0.08–0.10 px on some pairs; 0.05–0.08 at 20 Hz); 10 for
+    /// the town, KITTI's rate.
     pub fn rate_hz(&self) -> f64 {
         match self {
             SceneKind::Room => 30.0,
             SceneKind::Building => 15.0,
             SceneKind::Courtyard => 20.0,
+            SceneKind::Town => 10.0,
         }
     }
 
     /// The default number of frames: the room 100 s; the building one loop and 10 s more (so the
-    /// loop can be closed on the revisited stretch); the courtyard three laps.
-    pub fn default_frames(&self) -> usize {
+    /// loop can be closed on the revisited stretch); the courtyard three laps; the town the whole
+    /// drive of `seed` (its speeds are the seed's).
+    pub fn default_frames(&self, seed: u64) -> usize {
         let rate = self.rate_hz();
         match self {
             SceneKind::Room => 3000,
@@ -61,6 +74,34 @@ impl SceneKind {
             SceneKind::Courtyard => {
                 (3.0 * CourtyardLaps::lap_length() / 1.4 * rate).ceil() as usize
             }
+            SceneKind::Town => (TownDrive::new(seed).duration() * rate).floor() as usize + 1,
+        }
+    }
+
+    /// The scene's sensor of `kind` for `width × height` images: [`SensorModel::new`] with the
+    /// scene's focal length ([`SceneKind::focal_length`]).
+    pub fn sensor(&self, kind: SensorKind, width: usize, height: usize) -> SensorModel {
+        let mut sensor = SensorModel::new(kind, width, height);
+        let (f, p) = (self.focal_length(width), sensor.camera.pinhole);
+        sensor.camera.pinhole = geom::PinholeCamera::new(f, f, p.cx, p.cy);
+        sensor
+    }
+
+    /// The default image size: 640×480, KITTI's 1241×376 for the town.
+    pub fn default_size(&self) -> (usize, usize) {
+        match self {
+            SceneKind::Town => (1241, 376),
+            _ => (640, 480),
+        }
+    }
+
+    /// The focal length (px) for an image `width` pixels wide: 525 at 640 (see
+    /// [`RenderCamera::default_for_size`]) but for the town, KITTI's 707.09 px at 1241 (the
+    /// odometry benchmark's sequences 04–10), a 82° horizontal field of view.
+    pub fn focal_length(&self, width: usize) -> f64 {
+        match self {
+            SceneKind::Town => 707.0912 * width as f64 / 1241.0,
+            _ => FOCAL_AT_640 * width as f64 / 640.0,
         }
     }
 }
@@ -71,7 +112,9 @@ impl std::str::FromStr for SceneKind {
         SceneKind::ALL
             .into_iter()
             .find(|k| k.name() == s)
-            .ok_or_else(|| format!("unknown scene {s:?} (expected room, building or courtyard)"))
+            .ok_or_else(|| {
+                format!("unknown scene {s:?} (expected room, building, courtyard or town)")
+            })
     }
 }
 
@@ -284,7 +327,7 @@ impl Sequence {
         config.sensor.validate()?;
         let frames = config
             .frames
-            .unwrap_or_else(|| config.scene.default_frames());
+            .unwrap_or_else(|| config.scene.default_frames(config.seed));
         if frames == 0 {
             return Err(RenderError::InvalidParameter {
                 name: "frames",
@@ -321,6 +364,10 @@ impl Sequence {
             SceneKind::Courtyard => (
                 worlds::courtyard(config.seed),
                 Box::new(CourtyardLaps::new(config.seed)),
+            ),
+            SceneKind::Town => (
+                worlds::town(config.seed),
+                Box::new(TownDrive::new(config.seed)),
             ),
         };
         Ok(Sequence {

@@ -6,7 +6,7 @@ use super::Builder;
 use super::recipes::{self, NEUTRAL, tint};
 use crate::render::procedural::{hash1, range};
 use crate::render::scene::{Face, Scene, Sky};
-use crate::render::texture::{Layer, Material};
+use crate::render::texture::Layer;
 use nalgebra::Vector3;
 
 /// Half the side of the square (m): the façades stand at `x = ±20`, `y = ±20`.
@@ -15,52 +15,6 @@ const LAYOUT: u64 = 0x636f_7572_7479_6172;
 
 fn v(x: f64, y: f64, z: f64) -> Vector3<f64> {
     Vector3::new(x, y, z)
-}
-
-fn facade(seed: u64, w: f64, h: f64, kind: u64) -> Material {
-    // Brick; pre-cast concrete panels; or rendered (plaster) walls with rusticated joints.
-    let panels = |m: Material, pitch: (f64, f64)| {
-        m.with(Layer::Grid {
-            pitch_s: pitch.0,
-            pitch_t: pitch.1,
-            joint: 0.025,
-            joint_value: 0.2,
-            cell_variation: 0.08,
-            row_offset: 0.5,
-            random_length: false,
-        })
-    };
-    let base = match kind % 3 {
-        0 => recipes::brick(seed),
-        1 => panels(recipes::concrete(seed), (1.5, 0.75)),
-        _ => panels(recipes::plaster(seed), (0.9, 0.45)),
-    };
-    let storey = range(hash1(seed, 50), 3.0, 3.6);
-    let bay = range(hash1(seed, 51), 2.4, 3.6);
-    base.with(Layer::Windows {
-        pitch_s: bay,
-        pitch_t: storey,
-        t0: storey + 0.9,
-        t1: h - 0.5,
-        pane_s: bay * range(hash1(seed, 52), 0.4, 0.6),
-        pane_t: storey * 0.5,
-        frame: 0.07,
-    })
-    // Shop fronts and doors on the ground floor.
-    .with(Layer::Windows {
-        pitch_s: bay * 2.0,
-        pitch_t: storey,
-        t0: 0.4,
-        t1: storey - 0.3,
-        pane_s: bay * 1.3,
-        pane_t: storey - 1.0,
-        frame: 0.1,
-    })
-    .with(Layer::Text {
-        region: (0.5, storey - 0.55, w * 0.4, storey - 0.25),
-        row_height: 0.2,
-        ink: 0.1,
-    })
 }
 
 /// The courtyard world; textures seeded by `seed`. Texel 3 mm.
@@ -84,7 +38,7 @@ pub fn courtyard(seed: u64) -> Scene {
             tint(1.1, 1.05, 0.9),
         ][k];
         b.rect(corner, normal, w, height, colour, |s, w, h| {
-            facade(s, w, h, kind)
+            recipes::facade(s, w, h, kind)
         });
         let dir = Vector3::z().cross(&normal);
         // Balconies on the tall façades, downpipes, a cornice.
@@ -281,7 +235,7 @@ pub fn courtyard(seed: u64) -> Scene {
                 Some(if face == Face::MaxZ {
                     recipes::concrete(s)
                 } else {
-                    facade(s, fw, fh, kind)
+                    recipes::facade(s, fw, fh, kind)
                 })
             },
         );

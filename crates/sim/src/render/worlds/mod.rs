@@ -1,7 +1,8 @@
-//! The worlds: a furnished room, a building with a corridor loop, a courtyard; and a test
+//! The worlds: a furnished room, a building with a corridor loop, a courtyard, a town; and a test
 //! plane with a checkerboard for the geometric tests.
 //!
-//! Geometry is fixed per world; every surface's texture is seeded from the world seed and a
+//! Geometry is fixed per world (but for the town, whose buildings, cars and trees along its fixed
+//! streets are drawn from the seed); every surface's texture is seeded from the world seed and a
 //! running surface counter, so a different seed gives a differently textured world of the same
 //! shape, and no two surfaces of one world are alike.
 
@@ -9,10 +10,12 @@ mod building;
 mod courtyard;
 pub mod recipes;
 mod room;
+mod town;
 
 pub use building::{BUILDING_LOOP, building};
 pub use courtyard::{COURTYARD_HALF_SIZE, courtyard};
 pub use room::{ROOM_SIZE, room};
+pub use town::{TOWN_LANE_OFFSET, TOWN_STREETS_X, TOWN_STREETS_Y, town};
 
 use super::procedural::hash1;
 use super::scene::{Face, Scene};
@@ -117,7 +120,7 @@ mod tests {
 
     #[test]
     fn worlds_have_the_advertised_size_and_unique_textures() {
-        for scene in [room(1), building(1), courtyard(1)] {
+        for scene in [room(1), building(1), courtyard(1), town(1)] {
             assert!(
                 scene.quads.len() > 50,
                 "{}: {}",

@@ -537,3 +537,51 @@ pub fn foliage(seed: u64) -> Material {
             angle: 1.1,
         })
 }
+
+/// A façade of `w × h` metres: brick, pre-cast concrete panels or rendered plaster (by `kind`),
+/// storeys of windows, shop fronts and doors on the ground floor and a sign above them.
+pub fn facade(seed: u64, w: f64, h: f64, kind: u64) -> Material {
+    // Brick; pre-cast concrete panels; or rendered (plaster) walls with rusticated joints.
+    let panels = |m: Material, pitch: (f64, f64)| {
+        m.with(Layer::Grid {
+            pitch_s: pitch.0,
+            pitch_t: pitch.1,
+            joint: 0.025,
+            joint_value: 0.2,
+            cell_variation: 0.08,
+            row_offset: 0.5,
+            random_length: false,
+        })
+    };
+    let base = match kind % 3 {
+        0 => brick(seed),
+        1 => panels(concrete(seed), (1.5, 0.75)),
+        _ => panels(plaster(seed), (0.9, 0.45)),
+    };
+    let storey = range(hash1(seed, 50), 3.0, 3.6);
+    let bay = range(hash1(seed, 51), 2.4, 3.6);
+    base.with(Layer::Windows {
+        pitch_s: bay,
+        pitch_t: storey,
+        t0: storey + 0.9,
+        t1: h - 0.5,
+        pane_s: bay * range(hash1(seed, 52), 0.4, 0.6),
+        pane_t: storey * 0.5,
+        frame: 0.07,
+    })
+    // Shop fronts and doors on the ground floor.
+    .with(Layer::Windows {
+        pitch_s: bay * 2.0,
+        pitch_t: storey,
+        t0: 0.4,
+        t1: storey - 0.3,
+        pane_s: bay * 1.3,
+        pane_t: storey - 1.0,
+        frame: 0.1,
+    })
+    .with(Layer::Text {
+        region: (0.5, storey - 0.55, w * 0.4, storey - 0.25),
+        row_height: 0.2,
+        ink: 0.1,
+    })
+}

@@ -1,5 +1,6 @@
 //! Camera trajectories as continuous functions of time, seeded: hand-held browsing of the room
-//! with repeated revisits, a walk around the building's corridor loop, laps of the courtyard.
+//! with repeated revisits, a walk around the building's corridor loop, laps of the courtyard, a
+//! drive through the town ([`drive`]).
 //!
 //! Every path gives `world_from_camera(t)` for any `t ≥ 0` (the camera frame: x right, y down,
 //! z forward), so frames at any rate, and sub-frame poses for motion blur, come from the same
@@ -8,6 +9,10 @@
 //! Motions are built from a smooth "intent" (waypoints of position and gaze target joined by
 //! cubic Hermite segments with Catmull-Rom tangents, C¹) plus the small high-frequency motions
 //! of a hand or a walking head (sums of sinusoids of seeded phase: shake, step bob, sway).
+
+mod drive;
+
+pub use drive::{TOWN_ROUTE, TownDrive};
 
 use super::RenderError;
 use super::procedural::{hash1, range, unit};
