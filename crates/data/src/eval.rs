@@ -492,7 +492,10 @@ mod drift_tests {
         assert!(d.translation_percent < 1e-6, "{d:?}");
         let d = drift(&curved, &scaled, &KITTI_SEGMENT_LENGTHS, 10, Alignment::Se3).unwrap();
         // (2 % of each chord, shorter than the L metres of arc it is divided by.)
-        assert!(d.translation_percent > 1.4 && d.translation_percent < 2.02, "{d:?}");
+        assert!(
+            d.translation_percent > 1.4 && d.translation_percent < 2.02,
+            "{d:?}"
+        );
         // A heading that turns 0.01° per metre: a segment of L metres ends turned by 0.01·(L+1)°
         // (j is one pose beyond L), 1°(1 + 1/L) per 100 m; positions unchanged.
         let turning: Vec<Se3> = truth

@@ -431,15 +431,27 @@ pub fn topological_neighbourhood<const N: usize>(
     root: KeyframeId,
     hops: usize,
 ) -> BTreeSet<KeyframeId> {
+    within_hops(root, hops, |k| {
+        graph
+            .keyframe(k)
+            .map(|kf| kf.edges().keys().copied().collect())
+            .unwrap_or_default()
+    })
+}
+
+/// The keyframes within `hops` steps of `root` (root included), a step from `k` leading to each
+/// of `neighbours(k)`.
+pub(crate) fn within_hops(
+    root: KeyframeId,
+    hops: usize,
+    neighbours: impl Fn(KeyframeId) -> Vec<KeyframeId>,
+) -> BTreeSet<KeyframeId> {
     let mut seen = BTreeSet::from([root]);
     let mut frontier = vec![root];
     for _ in 0..hops {
         let mut next = Vec::new();
         for k in frontier {
-            let Some(kf) = graph.keyframe(k) else {
-                continue;
-            };
-            for &n in kf.edges().keys() {
+            for n in neighbours(k) {
                 if seen.insert(n) {
                     next.push(n);
                 }

@@ -114,9 +114,11 @@ pub(crate) struct MonoLoops {
     places: Arc<RwLock<MonoPlaces>>,
     store: Arc<RwLock<KeyframeStore>>,
     camera: PinholeCamera,
-    /// `mapping.theta` and `loops.exclusion_recent`: what is topologically close.
+    /// `mapping.theta`, `loops.exclusion_recent` and `loops.exclusion_hops`: what is
+    /// topologically close.
     theta: usize,
     recent: usize,
+    hops: usize,
     /// `mono.loop_consistency`, `mono.loop_agreement`, `mono.max_loop_drift`.
     consistency: usize,
     agreement: LoopAgreement,
@@ -133,13 +135,13 @@ pub(crate) struct MonoLoops {
 
 impl MonoLoops {
     /// The stage on `places` (shared with the relocalisation) for `camera`: what is
-    /// topologically close by `theta` and `recent` (`mapping.theta`,
-    /// `loops.exclusion_recent`), the acceptance by `mono`'s thresholds.
+    /// topologically close by `theta`, `recent` and `hops` (`mapping.theta`,
+    /// `loops.exclusion_recent`, `loops.exclusion_hops`), the acceptance by `mono`'s thresholds.
     pub fn new(
         places: Arc<RwLock<MonoPlaces>>,
         store: Arc<RwLock<KeyframeStore>>,
         camera: PinholeCamera,
-        (theta, recent): (usize, usize),
+        (theta, recent, hops): (usize, usize, usize),
         mono: &MonoConfig,
     ) -> Self {
         MonoLoops {
@@ -148,6 +150,7 @@ impl MonoLoops {
             camera,
             theta,
             recent,
+            hops,
             consistency: mono.loop_consistency,
             agreement: mono.loop_agreement,
             limits: DriftLimits {
@@ -196,7 +199,7 @@ impl MonoLoops {
             let g = graph.read();
             (
                 slam::loop_closure::constraint::depth_samples(&g, k),
-                topologically_close(&g, k, self.theta, self.recent),
+                topologically_close(&g, k, self.theta, self.recent, self.hops),
             )
         };
         let detected = {
@@ -416,26 +419,32 @@ pub(crate) fn shared_points(graph: &SlamGraph<2>, k: KeyframeId) -> BTreeMap<Key
 }
 
 /// The keyframes topologically close to `k`, never a loop's old place (thesis §6.4.2): the
-/// last `recent` keyframes and every keyframe covisible with `k`, sharing at least `theta`
-/// points (the graph's sense of connected, as the stereo system's edges). A handful of shared
+/// last `recent` keyframes and every keyframe within `hops` steps of `k` in the covisibility
+/// graph, a step joining two keyframes that share at least `theta` points (the graph's sense of
+/// connected, as the stereo system's edges and its `loops.exclusion_hops`). A handful of shared
 /// points does not close a loop: after a drifted revisit the guided search finds a few of the
 /// old place's points from the drifted pose, too few to hold the map, and excluding every
 /// keyframe that shares one of them hid the old place from detection for the rest of the
 /// revisit (rendered building, 2026-12-02: the last 45 keyframes shared 1–10 points each with
-/// the first ones, and no loop was detected after the first three).
+/// the first ones, and no loop was detected after the first three). One step was too few on a
+/// drive: keyframes 20–40 frames back on the same street see the same far façades, and their
+/// detections, redundant with the chain that joins them through the keyframes between, were
+/// accepted as loops and bent the chain in the correction (rendered town, bench/README).
 fn topologically_close(
     graph: &SlamGraph<2>,
     k: KeyframeId,
     theta: usize,
     recent: usize,
+    hops: usize,
 ) -> BTreeSet<KeyframeId> {
-    let mut close: BTreeSet<KeyframeId> = crate::loops::recent_keyframes(k, recent).collect();
-    close.extend(
-        shared_points(graph, k)
+    let mut close = crate::loops::within_hops(k, hops, |a| {
+        shared_points(graph, a)
             .into_iter()
-            .filter(|&(o, n)| o != k && n >= theta)
-            .map(|(o, _)| o),
-    );
+            .filter(|&(o, n)| o != a && n >= theta)
+            .map(|(o, _)| o)
+            .collect()
+    });
+    close.extend(crate::loops::recent_keyframes(k, recent));
     close
 }
 
@@ -496,20 +505,24 @@ mod tests {
         let id = KeyframeId::from_index;
         let z = Vector2::new(320.0, 240.0);
         // Keyframe 30 measures 25 points of keyframe 15 (covisible, θ = 20) and 3 of keyframe
-        // 2 (a drifted revisit's few re-found points).
-        for (old, n) in [(15, 25), (2, 3)] {
+        // 2 (a drifted revisit's few re-found points); keyframe 15 measures 25 of keyframe 8.
+        for (old, new, n) in [(15, 30, 25), (2, 30, 3), (8, 15, 25)] {
             for _ in 0..n {
                 let p = g
                     .add_point(id(old), Vector3::new(0.0, 0.0, 0.2), z)
                     .unwrap();
-                g.add_observation(id(30), p, z).unwrap();
+                g.add_observation(id(new), p, z).unwrap();
             }
         }
-        let close = topologically_close(&g, id(30), 20, 10);
+        let close = topologically_close(&g, id(30), 20, 10, 1);
         let expected: BTreeSet<KeyframeId> = (20..=30).chain([15]).map(id).collect();
         assert_eq!(close, expected);
+        // Two steps: keyframe 8 through 15, never the revisit's keyframe 2.
+        let close = topologically_close(&g, id(30), 20, 10, 2);
+        let expected: BTreeSet<KeyframeId> = (20..=30).chain([15, 8]).map(id).collect();
+        assert_eq!(close, expected);
         // With θ = 3 the revisit's keyframe counts as connected.
-        assert!(topologically_close(&g, id(30), 3, 10).contains(&id(2)));
+        assert!(topologically_close(&g, id(30), 3, 10, 1).contains(&id(2)));
     }
 
     #[test]

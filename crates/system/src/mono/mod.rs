@@ -134,7 +134,11 @@ impl MonoSensor {
             places,
             store,
             self.camera,
-            (config.mapping.theta, config.loops.exclusion_recent),
+            (
+                config.mapping.theta,
+                config.loops.exclusion_recent,
+                config.loops.exclusion_hops,
+            ),
             &config.mono,
         )
     }
