@@ -95,8 +95,8 @@ pub struct LoopEvent {
     /// The scale of the loop's similarity (monocular: the scale drift between the two
     /// places, thesis ch. 5, or between two joined maps; `None` for a rigid loop).
     pub scale: Option<f64>,
-    /// The correction an appearance loop made to the new keyframe, against the path since
-    /// the old one (stereo and RGB-D).
+    /// The correction an appearance loop made (stereo and RGB-D) or asks (monocular, corrected
+    /// later) to the new keyframe, against the path since the old one.
     pub correction: Option<LoopDrift>,
     /// What an appearance loop rests on (stereo and RGB-D).
     pub evidence: Option<LoopEvidence>,

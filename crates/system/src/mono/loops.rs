@@ -37,6 +37,9 @@ pub(crate) struct LoopDetection {
     pub old: KeyframeId,
     /// `x_current = S·x_old` for camera-frame points.
     pub current_from_old: Sim3,
+    /// The correction the loop makes to the current keyframe, against the path between the
+    /// two (a loop within one map; `None` for a join of two maps).
+    pub drift: Option<LoopDrift>,
 }
 
 /// What the stage gives back to the monocular sensor.
@@ -227,8 +230,8 @@ impl MonoLoops {
             }
         };
         let g = graph.read();
-        match loop_drift(&g, c.old, k, &c.query_from_old) {
-            Some(drift) if drift.within(&self.limits) => {}
+        let drift = match loop_drift(&g, c.old, k, &c.query_from_old) {
+            Some(drift) if drift.within(&self.limits) => drift,
             Some(drift) => {
                 return out.push(LoopOutput::Refused(RefusedLoop {
                     frames: self.frames(k, c.old),
@@ -237,11 +240,12 @@ impl MonoLoops {
                 }));
             }
             None => return,
-        }
+        };
         let detection = LoopDetection {
             current: k,
             old: c.old,
             current_from_old: c.query_from_old,
+            drift: Some(drift),
         };
         // Consistent with the last detection, if that was a few keyframes ago.
         let follows = self.chain.last().is_some_and(|last| {
@@ -268,7 +272,7 @@ impl MonoLoops {
                 frames: self.frames(d.current, d.old),
                 kind: "appearance",
                 scale: Some(d.current_from_old.scale()),
-                correction: None,
+                correction: d.drift,
                 evidence: None,
             }));
             out.push(LoopOutput::Sensor(MonoLoopData::Accepted(d)));
@@ -307,6 +311,7 @@ impl MonoLoops {
                     current: k,
                     old: c.old,
                     current_from_old: c.query_from_old,
+                    drift: None,
                 },
                 inliers: c.inliers.len(),
             };
@@ -559,6 +564,7 @@ mod tests {
             current: id(current),
             old: id(old),
             current_from_old,
+            drift: None,
         };
         let a = detection(15, 2, s(15, 2));
         assert!(loops_agree(
