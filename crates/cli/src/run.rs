@@ -612,6 +612,7 @@ fn summary_extra(
                 .map(|l| json!({
         "keyframe": l.keyframe.index(), "old": l.old.index(),
         "frame": l.frames.0, "old_frame": l.frames.1, "kind": l.kind, "scale": l.scale,
+        "scale_log_sigma": l.scale_sigma, "detections_agreeing": l.agreeing,
         "correction_m": l.correction.map(|d| d.displacement),
         "path_m": l.correction.map(|d| d.path),
         "ransac_inliers": l.evidence.map(|e| e.ransac_inliers),
@@ -654,7 +655,7 @@ fn summary_extra(
                 .map(|r| json!({
         "frame": r.frames.0, "old_frame": r.frames.1,
         "correction_m": r.drift.displacement, "path_m": r.drift.path,
-        "scene_depth_m": r.drift.scene_depth, "allowed_m": r.allowed}))
+        "scene_depth_m": r.drift.scene_depth, "allowed_m": r.allowed, "reason": r.reason}))
                 .collect::<Vec<_>>()
         ),
     );

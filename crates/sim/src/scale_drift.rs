@@ -341,6 +341,7 @@ fn close_and_evaluate(
                 old,
                 current,
                 old_from_current: c.old_from_current,
+                information: None,
             },
             matches: c.with_depth,
             inliers: c.inliers.len(),
@@ -776,7 +777,7 @@ pub fn jacobian_convergence(
     repeats: usize,
 ) -> Result<Vec<JacobianTrace>, ScaleDriftError> {
     let edges: Vec<LoopEdge> = run.loops.iter().map(|l| l.edge).collect();
-    let (poses, constraints) = sim3_pose_graph(&run.explored, &edges);
+    let (poses, constraints) = sim3_pose_graph(&run.explored, &edges, &[]);
     let options = SolverOptions {
         max_iterations: iterations,
         function_tolerance: 0.0,

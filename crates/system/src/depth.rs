@@ -369,6 +369,8 @@ fn metric_loop(ctx: &mut Ctx, keyframe: KeyframeId, old: KeyframeId, kind: &'sta
         frames,
         kind,
         scale: None,
+        scale_sigma: None,
+        agreeing: None,
         correction: None,
         evidence: None,
     });

@@ -380,6 +380,8 @@ impl crate::session::backend::Stage<3> for LoopCloser {
                         "appearance"
                     },
                     scale: None,
+                    scale_sigma: None,
+                    agreeing: None,
                     correction: event.drift,
                     evidence: Some(event.evidence),
                 }));
@@ -400,7 +402,10 @@ impl crate::session::backend::Stage<3> for LoopCloser {
             out.push(LoopOutput::Refused(RefusedLoop {
                 frames: frames(k, old),
                 drift,
-                allowed: drift.allowed(&limits),
+                allowed: Some(drift.allowed(&limits)),
+                reason: "needs more correction than loops.max_drift_of_path and \
+                         loops.max_drift_of_scene_depth allow"
+                    .into(),
             }));
         }
         out.extend(

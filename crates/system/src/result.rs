@@ -95,10 +95,15 @@ pub struct LoopEvent {
     /// The scale of the loop's similarity (monocular: the scale drift between the two
     /// places, thesis ch. 5, or between two joined maps; `None` for a rigid loop).
     pub scale: Option<f64>,
+    /// The standard error of the scale's logarithm, from the fit of a monocular loop's
+    /// similarity on the old place's points.
+    pub scale_sigma: Option<f64>,
+    /// The detections in a row that agreed when the loop was accepted (monocular).
+    pub agreeing: Option<usize>,
     /// The correction an appearance loop made (stereo and RGB-D) or asks (monocular, corrected
     /// later) to the new keyframe, against the path since the old one.
     pub correction: Option<LoopDrift>,
-    /// What an appearance loop rests on (stereo and RGB-D).
+    /// What an appearance loop rests on.
     pub evidence: Option<LoopEvidence>,
 }
 
@@ -145,8 +150,11 @@ pub struct RefusedLoop {
     pub frames: (usize, usize),
     /// The correction it needed, the path it was measured against and what that allows.
     pub drift: LoopDrift,
-    /// The largest correction allowed for that path and scene (map units).
-    pub allowed: f64,
+    /// The largest correction allowed for that path and scene (map units), if the loop was
+    /// refused for needing more.
+    pub allowed: Option<f64>,
+    /// Why it was refused.
+    pub reason: String,
 }
 
 /// The final graph of a run, of the sensor's measurement dimension.

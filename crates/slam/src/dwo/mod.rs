@@ -1471,6 +1471,7 @@ mod graph_tests {
                 old: 0,
                 current: 29,
                 old_from_current: disagreement.compose(&chain_loop),
+                information: None,
             }];
             correct_graph(
                 &mut g,

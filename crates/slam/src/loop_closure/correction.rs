@@ -34,6 +34,49 @@ pub struct LoopEdge {
     pub current: usize,
     /// `S` with `x_old = S·x_current` (see [`LoopConstraint`]).
     pub old_from_current: Sim3,
+    /// Its information (`None`: the identity, thesis eq. 5.16's usual choice).
+    pub information: Option<EdgeInformation>,
+}
+
+/// A diagonal information of a pose-graph edge, `diag(λ_trans²·I₃, λ_rot²·I₃, λ_scale²)` in
+/// the tangent order `(v, ω, σ)` (thesis eq. 6.2; the scale entry only in Sim(3)).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EdgeInformation {
+    /// `λ_trans²` (1/map unit²).
+    pub translation: f64,
+    /// `λ_rot²` (1/rad²).
+    pub rotation: f64,
+    /// `λ_scale²` (of `σ = ln s`).
+    pub scale: f64,
+}
+
+impl EdgeInformation {
+    fn sim3(info: Option<&Self>) -> SMatrix<f64, 7, 7> {
+        info.map_or_else(SMatrix::identity, |i| {
+            SMatrix::from_diagonal(&nalgebra::SVector::<f64, 7>::from([
+                i.translation,
+                i.translation,
+                i.translation,
+                i.rotation,
+                i.rotation,
+                i.rotation,
+                i.scale,
+            ]))
+        })
+    }
+
+    fn se3(info: Option<&Self>) -> SMatrix<f64, 6, 6> {
+        info.map_or_else(SMatrix::identity, |i| {
+            SMatrix::from_diagonal(&nalgebra::SVector::<f64, 6>::from([
+                i.translation,
+                i.translation,
+                i.translation,
+                i.rotation,
+                i.rotation,
+                i.rotation,
+            ]))
+        })
+    }
 }
 
 /// The group the pose graph is optimised in.
@@ -47,11 +90,13 @@ pub enum CorrectionGroup {
 
 /// The Sim(3) pose graph of a keyframe chain with loops (thesis §5.3.2): the keyframes as
 /// similarities with `s = 1`, consecutive constraints `S_{k+1,k} = T_{k+1}·T_k⁻¹` (`s = 1`) and
-/// loop constraints `S_ji = old_from_current⁻¹` (`i` old, `j` current), all with identity
-/// information.
+/// loop constraints `S_ji = old_from_current⁻¹` (`i` old, `j` current). The information of
+/// the consecutive constraint `k → k+1` is `chain[k]` (the identity if `chain` is empty), a
+/// loop's its own.
 pub fn sim3_pose_graph(
     keyframe_poses: &[Se3],
     loops: &[LoopEdge],
+    chain: &[EdgeInformation],
 ) -> (Vec<Sim3>, Vec<Constraint<Sim3, 7>>) {
     let poses: Vec<Sim3> = keyframe_poses.iter().map(Sim3::from_se3).collect();
     let mut constraints: Vec<Constraint<Sim3, 7>> = keyframe_poses
@@ -61,21 +106,25 @@ pub fn sim3_pose_graph(
             i: k,
             j: k + 1,
             measured: Sim3::from_se3(&w[1].compose(&w[0].inverse())),
-            information: SMatrix::identity(),
+            information: EdgeInformation::sim3(chain.get(k)),
         })
         .collect();
     constraints.extend(loops.iter().map(|l| Constraint {
         i: l.old,
         j: l.current,
         measured: l.old_from_current.inverse(),
-        information: SMatrix::identity(),
+        information: EdgeInformation::sim3(l.information.as_ref()),
     }));
     (poses, constraints)
 }
 
 /// The SE(3) pose graph of the same chain: loop constraints reduced to the rigid part `(R, t)`
-/// of `old_from_current⁻¹`.
-pub fn se3_pose_graph(keyframe_poses: &[Se3], loops: &[LoopEdge]) -> Vec<Constraint<Se3, 6>> {
+/// of `old_from_current⁻¹`, the informations without their scale entries.
+pub fn se3_pose_graph(
+    keyframe_poses: &[Se3],
+    loops: &[LoopEdge],
+    chain: &[EdgeInformation],
+) -> Vec<Constraint<Se3, 6>> {
     let mut constraints: Vec<Constraint<Se3, 6>> = keyframe_poses
         .windows(2)
         .enumerate()
@@ -83,14 +132,14 @@ pub fn se3_pose_graph(keyframe_poses: &[Se3], loops: &[LoopEdge]) -> Vec<Constra
             i: k,
             j: k + 1,
             measured: w[1].compose(&w[0].inverse()),
-            information: SMatrix::identity(),
+            information: EdgeInformation::se3(chain.get(k)),
         })
         .collect();
     constraints.extend(loops.iter().map(|l| Constraint {
         i: l.old,
         j: l.current,
         measured: l.old_from_current.inverse().rigid_part(),
-        information: SMatrix::identity(),
+        information: EdgeInformation::se3(l.information.as_ref()),
     }));
     constraints
 }
@@ -107,17 +156,19 @@ pub struct Correction {
 }
 
 /// Optimises the pose graph of a keyframe chain with loop edges in SE(3) or Sim(3), the first
-/// keyframe fixed (thesis eq. 5.16–5.17).
+/// keyframe fixed (thesis eq. 5.16–5.17); `chain` the consecutive constraints' informations
+/// (empty: the identity).
 pub fn correct_pose_graph(
     keyframe_poses: &[Se3],
     loops: &[LoopEdge],
+    chain: &[EdgeInformation],
     group: CorrectionGroup,
     jacobian: PoseGraphJacobian,
     options: &SolverOptions,
 ) -> Result<Correction, CorrectionError> {
     match group {
         CorrectionGroup::Sim3 => {
-            let (poses, constraints) = sim3_pose_graph(keyframe_poses, loops);
+            let (poses, constraints) = sim3_pose_graph(keyframe_poses, loops, chain);
             let mut pg = PoseGraphProblem::with_jacobian(&poses, &constraints, &[0], jacobian)?;
             let summary = pg.problem.optimise(options)?;
             let similarities = pg.camera_from_world();
@@ -128,7 +179,7 @@ pub fn correct_pose_graph(
             })
         }
         CorrectionGroup::Se3 => {
-            let constraints = se3_pose_graph(keyframe_poses, loops);
+            let constraints = se3_pose_graph(keyframe_poses, loops, chain);
             let mut pg =
                 PoseGraphProblem::with_jacobian(keyframe_poses, &constraints, &[0], jacobian)?;
             let summary = pg.problem.optimise(options)?;
@@ -189,27 +240,28 @@ pub fn correct_graph<const N: usize>(
     jacobian: PoseGraphJacobian,
     options: &SolverOptions,
 ) -> Result<Correction, CorrectionError> {
-    correct_chain(graph, None, loops, group, jacobian, options)
+    correct_chain(graph, None, (loops, &[]), group, jacobian, options)
 }
 
 /// [`correct_graph`] for the keyframes of map `map` alone, in a graph that holds several
 /// ([`SlamGraph::start_map`]): the chain is that map's keyframes in id order, `loops` give
-/// positions in it, and the other maps' keyframes stay as they are.
+/// positions in it, `chain` the informations of its consecutive constraints (empty: the
+/// identity), and the other maps' keyframes stay as they are.
 pub fn correct_map<const N: usize>(
     graph: &mut SlamGraph<N>,
     map: usize,
-    loops: &[LoopEdge],
+    (loops, chain): (&[LoopEdge], &[EdgeInformation]),
     group: CorrectionGroup,
     jacobian: PoseGraphJacobian,
     options: &SolverOptions,
 ) -> Result<Correction, CorrectionError> {
-    correct_chain(graph, Some(map), loops, group, jacobian, options)
+    correct_chain(graph, Some(map), (loops, chain), group, jacobian, options)
 }
 
 fn correct_chain<const N: usize>(
     graph: &mut SlamGraph<N>,
     map: Option<usize>,
-    loops: &[LoopEdge],
+    (loops, chain_information): (&[LoopEdge], &[EdgeInformation]),
     group: CorrectionGroup,
     jacobian: PoseGraphJacobian,
     options: &SolverOptions,
@@ -225,7 +277,8 @@ fn correct_chain<const N: usize>(
             keyframes: ids.len(),
         });
     }
-    let correction = correct_pose_graph(&poses, loops, group, jacobian, options)?;
+    let correction =
+        correct_pose_graph(&poses, loops, chain_information, group, jacobian, options)?;
     for (&k, s_cor) in ids.iter().zip(&correction.similarities) {
         let scale = graph.pose(k)?.scale();
         let pose = if scale == 1.0 {
@@ -347,6 +400,7 @@ mod tests {
             old: 0,
             current: n - 1,
             old_from_current,
+            information: None,
         }];
         let options = SolverOptions::default();
         let err = |poses: &[Se3]| -> f64 {
@@ -371,6 +425,7 @@ mod tests {
         let sim = correct_pose_graph(
             &est,
             &loops,
+            &[],
             CorrectionGroup::Sim3,
             PoseGraphJacobian::Analytic(lie::LogJacobian::Exact),
             &options,
@@ -379,6 +434,7 @@ mod tests {
         let se = correct_pose_graph(
             &est,
             &loops,
+            &[],
             CorrectionGroup::Se3,
             PoseGraphJacobian::Analytic(lie::LogJacobian::Exact),
             &options,
@@ -394,6 +450,69 @@ mod tests {
             "before {e0}, Sim(3) {e_sim}, SE(3) {e_se}"
         );
         assert!(e_sim < 0.1 * e0);
+    }
+
+    /// The edges' informations decide where a loop's correction goes: a straight chain of 20
+    /// keyframes a metre apart whose loop says the last one is 1 m further on; with the identity
+    /// every consecutive edge stretches by about 1/19 m in SE(3) (in Sim(3) the scales take it),
+    /// with one edge ten thousand times less informative than the others (keyframes that share
+    /// few points) that edge takes nearly the whole metre — in SE(3) and in Sim(3).
+    #[test]
+    fn a_weak_edge_takes_the_loop_correction() {
+        let n = 20;
+        let pose = |x: f64| Se3::new(So3::identity(), Vector3::new(0.0, 0.0, -x));
+        let est: Vec<Se3> = (0..n).map(|k| pose(k as f64)).collect();
+        let truth_last = pose(n as f64);
+        let loops = [LoopEdge {
+            old: 0,
+            current: n - 1,
+            old_from_current: Sim3::from_se3(&est[0].compose(&truth_last.inverse())),
+            information: Some(EdgeInformation {
+                translation: 1e4,
+                rotation: 1e4,
+                scale: 1e4,
+            }),
+        }];
+        let weak = 9;
+        let chain: Vec<EdgeInformation> = (0..n - 1)
+            .map(|k| {
+                let w = if k == weak { 1e-4 } else { 1.0 };
+                EdgeInformation {
+                    translation: w,
+                    rotation: w,
+                    scale: w,
+                }
+            })
+            .collect();
+        let options = SolverOptions::default();
+        let jacobian = PoseGraphJacobian::Analytic(lie::LogJacobian::Exact);
+        let stretch = |c: &Correction, k: usize| {
+            let p = &c.camera_from_world;
+            (p[k + 1].inverse().translation() - p[k].inverse().translation()).norm() - 1.0
+        };
+        for group in [CorrectionGroup::Se3, CorrectionGroup::Sim3] {
+            let identity =
+                correct_pose_graph(&est, &loops, &[], group, jacobian, &options).unwrap();
+            let weighted =
+                correct_pose_graph(&est, &loops, &chain, group, jacobian, &options).unwrap();
+            for k in 0..n - 1 {
+                assert!(
+                    group == CorrectionGroup::Sim3
+                        || (stretch(&identity, k) - 1.0 / 19.0).abs() < 0.01,
+                    "{group:?}, identity, edge {k}: {}",
+                    stretch(&identity, k)
+                );
+                let stretched = stretch(&weighted, k);
+                assert!(
+                    if k == weak {
+                        stretched > 0.9
+                    } else {
+                        stretched.abs() < 0.01
+                    },
+                    "{group:?}, weighted, edge {k}: {stretched}"
+                );
+            }
+        }
     }
 
     /// On the graph the points follow their anchors: after the correction each point is where
@@ -426,6 +545,7 @@ mod tests {
             old: 0,
             current: 11,
             old_from_current: Sim3::new(*drifted.rotation(), *drifted.translation(), 0.9).unwrap(),
+            information: None,
         }];
         let correction = correct_graph(
             &mut g,

@@ -46,6 +46,7 @@ use lie::{LieGroup, Se3, Sim3};
 use loops::{LoopDetection, MonoLoopData, MonoLoopJob, MonoLoops, MonoPlaces};
 use nalgebra::{Vector2, Vector3};
 use slam::exploration::{ExplorationError, FrameOutcome, MonoExplorer, TrackId, rigid_pose};
+use slam::loop_closure::correction::EdgeInformation;
 use slam::loop_closure::correction::correct_map;
 use slam::loop_closure::{CorrectionGroup, LoopEdge};
 use slam::map::shared::{read_lock, write_lock};
@@ -130,17 +131,7 @@ impl MonoSensor {
         let place = config.place_recognition_for(None);
         let places = Arc::new(RwLock::new(MonoPlaces::new(vocabulary, place)));
         self.places = Some(places.clone());
-        MonoLoops::new(
-            places,
-            store,
-            self.camera,
-            (
-                config.mapping.theta,
-                config.loops.exclusion_recent,
-                config.loops.exclusion_hops,
-            ),
-            &config.mono,
-        )
+        MonoLoops::new(places, store, self.camera, config)
     }
 
     /// Whether a lost camera looks for its place in the current map: a map of two keyframes
@@ -654,9 +645,12 @@ impl MonoSensor {
         let mut graph = ctx.graph.write();
         let map = graph.current_map();
         let loops = self.accepted.get(&map).map_or(&[][..], Vec::as_slice);
-        let edges = map_edges(&graph, map, loops, ctx.config.mapping.theta);
+        let dwo = ctx.config.double_window(self.camera.fx, None);
+        let (edges, chain) = map_edges(&graph, map, loops, ctx.config.mapping.theta, &dwo);
         let group = correction_groups(ctx.config.mono.loop_correction).0;
-        if let Err(e) = explorer.correct_map(&mut graph, |g| correct_loops(g, map, &edges, group)) {
+        if let Err(e) = explorer.correct_map(&mut graph, |g| {
+            correct_loops(g, map, (&edges, &chain), group)
+        }) {
             ctx.warnings
                 .push(format!("loop correction in {group:?}: {e}"));
         }
@@ -749,36 +743,41 @@ fn correction_groups(correction: LoopCorrection) -> (CorrectionGroup, Correction
     }
 }
 
-/// The pose graph's loop edges of map `map` (positions in its chain of keyframes, id order):
-/// the accepted `loops` (thesis §5.3.2), and the covisibility edges — every pair of keyframes
-/// sharing at least `theta` map points, not consecutive, constrained to their relative pose in
-/// the map as it is (scale 1). With map reuse the map holds keyframes far apart on the path
-/// that measure the same points (a revisited place whose points were found again): the loop
-/// there is already closed, and these edges keep it closed where a chain alone would let a
-/// loop edge's noise — its scale from the regressed depths is good to a few per cent — bend it
-/// open again.
+/// The pose graph of map `map` (positions in its chain of keyframes, id order): its loop
+/// edges — the accepted `loops` (thesis §5.3.2) and the covisibility edges, every pair of
+/// keyframes sharing at least `theta` map points, not consecutive, constrained to their
+/// relative pose in the map as it is (scale 1) — and the informations of its consecutive
+/// constraints. With map reuse the map holds keyframes far apart on the path that measure the
+/// same points (a revisited place whose points were found again): the loop there is already
+/// closed, and the covisibility edges keep it closed.
+///
+/// **Information** (thesis eq. 6.2, the double window's coarse information,
+/// `slam::dwo::DwoParams::edge_precision`): an edge between keyframes `i` and `j` that share
+/// `w` points seen by `j` at median depth `d̄` is worth `w·diag(λ_trans²·I₃, λ_rot²·I₃,
+/// λ_rot²)`, `λ_rot = (f/σ)·‖t_ji‖/d̄`, `λ_trans = λ_rot/d̄`: the relative pose is measured
+/// through the points' parallax, and a rotation `δθ` moves the points in the image as much as
+/// a translation `d̄·δθ`. With the identity instead, bending the chain by small rotations was
+/// the cheapest way to absorb a loop's correction on a drive, and the correction made the
+/// trajectory worse than the live one (rendered town, bench/README). A loop edge's relative
+/// pose is measured against the old place's points, whose positions the map already holds
+/// (no parallax needed): `w` the points found, `λ_rot = f/σ`, its scale's precision
+/// `1/(σ_s² + 1/(w·λ_rot²))` from the fit's standard error `σ_s`
+/// (`loops::MonoLoops::fit_old_place`); a loop without it has the same scale precision as its
+/// rotation.
 fn map_edges(
     graph: &SlamGraph<2>,
     map: usize,
     loops: &[LoopDetection],
     theta: usize,
-) -> Vec<LoopEdge> {
-    let position: BTreeMap<KeyframeId, usize> = graph
+    dwo: &slam::dwo::DwoParams,
+) -> (Vec<LoopEdge>, Vec<EdgeInformation>) {
+    let chain: Vec<KeyframeId> = graph
         .keyframes()
         .filter(|(_, kf)| kf.map() == map)
-        .enumerate()
-        .map(|(i, (k, _))| (k, i))
+        .map(|(k, _)| k)
         .collect();
-    let mut edges: Vec<LoopEdge> = loops
-        .iter()
-        .filter_map(|d| {
-            Some(LoopEdge {
-                old: *position.get(&d.old)?,
-                current: *position.get(&d.current)?,
-                old_from_current: d.current_from_old.inverse(),
-            })
-        })
-        .collect();
+    let position: BTreeMap<KeyframeId, usize> =
+        chain.iter().enumerate().map(|(i, &k)| (k, i)).collect();
     let mut shared: BTreeMap<(KeyframeId, KeyframeId), usize> = Default::default();
     for (_, point) in graph.points() {
         let observers: Vec<KeyframeId> = point
@@ -793,19 +792,77 @@ fn map_edges(
             }
         }
     }
+    let depth: BTreeMap<KeyframeId, f64> = chain
+        .iter()
+        .filter_map(|&k| {
+            let mut d: Vec<f64> = slam::loop_closure::constraint::depth_samples(graph, k)
+                .into_iter()
+                .map(|(_, d)| d)
+                .collect();
+            (!d.is_empty()).then(|| {
+                let mid = d.len() / 2;
+                (k, *d.select_nth_unstable_by(mid, f64::total_cmp).1)
+            })
+        })
+        .collect();
+    let relative = |a: KeyframeId, b: KeyframeId| -> Option<Sim3> {
+        Some(graph.pose(a).ok()?.compose(&graph.pose(b).ok()?.inverse()))
+    };
+    // Edge `a → b` (`b` the younger): `w` shared points at `b`'s median depth.
+    let information = |a: KeyframeId, b: KeyframeId, w: usize| -> Option<EdgeInformation> {
+        let d = *depth.get(&b)?;
+        let t = rigid_from_similarity(&relative(a, b)?).translation().norm();
+        let (trans, rot) = dwo.edge_precision(t, d);
+        let w = w.max(1) as f64;
+        Some(EdgeInformation {
+            translation: w * trans,
+            rotation: w * rot,
+            scale: w * rot,
+        })
+    };
+    let chain_information: Vec<EdgeInformation> = chain
+        .windows(2)
+        .map(|p| {
+            let w = shared.get(&(p[0], p[1])).copied().unwrap_or(0);
+            information(p[0], p[1], w).unwrap_or(EdgeInformation {
+                translation: 1.0,
+                rotation: 1.0,
+                scale: 1.0,
+            })
+        })
+        .collect();
+    let mut edges: Vec<LoopEdge> = loops
+        .iter()
+        .filter_map(|d| {
+            let w = d.evidence.map_or(theta, |e| e.old_points_found).max(1) as f64;
+            let rot = w * dwo.angular_precision.powi(2);
+            let scale = d.scale_sigma.map_or(rot, |s| 1.0 / (s * s + 1.0 / rot));
+            Some(LoopEdge {
+                old: *position.get(&d.old)?,
+                current: *position.get(&d.current)?,
+                old_from_current: d.current_from_old.inverse(),
+                information: Some(EdgeInformation {
+                    translation: rot / depth.get(&d.old)?.powi(2),
+                    rotation: rot,
+                    scale,
+                }),
+            })
+        })
+        .collect();
     edges.extend(
         shared
-            .into_iter()
-            .filter(|&((a, b), n)| n >= theta && position[&b] > position[&a] + 1)
-            .filter_map(|((a, b), _)| {
+            .iter()
+            .filter(|&(&(a, b), &n)| n >= theta && position[&b] > position[&a] + 1)
+            .filter_map(|(&(a, b), &n)| {
                 Some(LoopEdge {
                     old: position[&a],
                     current: position[&b],
-                    old_from_current: graph.pose(a).ok()?.compose(&graph.pose(b).ok()?.inverse()),
+                    old_from_current: relative(a, b)?,
+                    information: information(a, b, n),
                 })
             }),
     );
-    edges
+    (edges, chain_information)
 }
 
 /// Corrects map `map` of `graph` through the pose graph of its keyframe chain and `edges` in
@@ -814,7 +871,7 @@ fn map_edges(
 fn correct_loops(
     graph: &mut SlamGraph<2>,
     map: usize,
-    edges: &[LoopEdge],
+    (edges, chain): (&[LoopEdge], &[EdgeInformation]),
     group: CorrectionGroup,
 ) -> Result<(), slam::loop_closure::correction::CorrectionError> {
     let options = lsq::SolverOptions {
@@ -823,7 +880,7 @@ fn correct_loops(
         ..lsq::SolverOptions::default()
     };
     let jacobian = PoseGraphJacobian::Analytic(lie::LogJacobian::Exact);
-    correct_map(graph, map, edges, group, jacobian, &options).map(|_| ())
+    correct_map(graph, map, (edges, chain), group, jacobian, &options).map(|_| ())
 }
 
 impl Sensor<2> for MonoSensor {
@@ -962,9 +1019,10 @@ impl Sensor<2> for MonoSensor {
                 continue;
             };
             any = true;
-            let edges = map_edges(&graph, map, loops, ctx.config.mapping.theta);
+            let dwo = ctx.config.double_window(self.camera.fx, None);
+            let (edges, chain) = map_edges(&graph, map, loops, ctx.config.mapping.theta, &dwo);
             let t = Instant::now();
-            if let Err(e) = correct_loops(&mut corrected, map, &edges, primary) {
+            if let Err(e) = correct_loops(&mut corrected, map, (&edges, &chain), primary) {
                 ctx.warnings
                     .push(format!("loop correction of map {map} in {primary:?}: {e}"));
                 // The map stays as it was.
@@ -973,7 +1031,7 @@ impl Sensor<2> for MonoSensor {
                 }
             }
             if let Some(g) = alternative.as_mut()
-                && let Err(e) = correct_loops(g, map, &edges, other)
+                && let Err(e) = correct_loops(g, map, (&edges, &chain), other)
             {
                 ctx.warnings
                     .push(format!("loop correction of map {map} in {other:?}: {e}"));

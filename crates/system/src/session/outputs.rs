@@ -66,9 +66,7 @@ pub(super) fn assemble<const N: usize>(
     let new_maps = new_map_records(&new_maps, &log, &graph, &from_world, &store);
     warnings.extend(join_warnings(&graph, &from_world));
     warnings.extend(new_maps.iter().map(|m| new_map_warning(m, world)));
-    if let Some(w) = refused_loop_warning(&refused) {
-        warnings.push(w);
-    }
+    warnings.extend(refused_loop_warnings(&refused));
     if loop_queue_full.0 > 0 {
         warnings.push(format!(
             "{} keyframes found the loop closer's queue full and were not entered into place \
@@ -282,30 +280,55 @@ fn new_map_warning(m: &NewMap, world: usize) -> String {
     }
 }
 
-/// The warning that sums up the refused appearance loops: how many, the range of corrections
-/// they needed and the largest one next to what its path allowed; `None` if there were none.
-pub(crate) fn refused_loop_warning(refused: &[RefusedLoop]) -> Option<String> {
-    let worst = refused
+/// The warnings that sum up the refused appearance loops: those refused for the correction
+/// they needed (how many, the range of corrections and the largest one next to what its path
+/// allowed), and those refused on their evidence (how many, and the first one's reason).
+pub(crate) fn refused_loop_warnings(refused: &[RefusedLoop]) -> Vec<String> {
+    let (by_drift, by_evidence): (Vec<&RefusedLoop>, Vec<&RefusedLoop>) =
+        refused.iter().partition(|r| r.allowed.is_some());
+    let plural = |n: usize| {
+        if n == 1 { ("", "was") } else { ("s", "were") }
+    };
+    let mut warnings = Vec::new();
+    if let Some(worst) = by_drift
         .iter()
-        .max_by(|a, b| a.drift.displacement.total_cmp(&b.drift.displacement))?;
-    let least = refused
-        .iter()
-        .map(|r| r.drift.displacement)
-        .fold(f64::INFINITY, f64::min);
-    Some(format!(
-        "{} loop{} by appearance {} refused, each needing more correction than the drift \
-         the path between the two places allows (a place that looks like another): \
-         {least:.2}–{:.2} m, the largest from frame {} to frame {} against {:.2} m allowed over \
-         {:.1} m of path (all in summary.json, refused_loops)",
-        refused.len(),
-        if refused.len() == 1 { "" } else { "s" },
-        if refused.len() == 1 { "was" } else { "were" },
-        worst.drift.displacement,
-        worst.frames.0,
-        worst.frames.1,
-        worst.allowed,
-        worst.drift.path,
-    ))
+        .max_by(|a, b| a.drift.displacement.total_cmp(&b.drift.displacement))
+    {
+        let least = by_drift
+            .iter()
+            .map(|r| r.drift.displacement)
+            .fold(f64::INFINITY, f64::min);
+        let (s, was) = plural(by_drift.len());
+        warnings.push(format!(
+            "{} loop{s} by appearance {was} refused, each needing more correction than the \
+             drift the path between the two places allows (a place that looks like another): \
+             {least:.2}–{:.2} m, the largest from frame {} to frame {} against {:.2} m allowed \
+             over {:.1} m of path (all in summary.json, refused_loops)",
+            by_drift.len(),
+            worst.drift.displacement,
+            worst.frames.0,
+            worst.frames.1,
+            worst.allowed.unwrap_or_default(),
+            worst.drift.path,
+        ));
+    }
+    if let Some(first) = by_evidence.first() {
+        let (s, was) = plural(by_evidence.len());
+        warnings.push(format!(
+            "{} loop detection{s} by appearance {was} refused on {} evidence; the first, from \
+             frame {} to frame {}: {} (all in summary.json, refused_loops)",
+            by_evidence.len(),
+            if by_evidence.len() == 1 {
+                "its"
+            } else {
+                "their"
+            },
+            first.frames.0,
+            first.frames.1,
+            first.reason,
+        ));
+    }
+    warnings
 }
 
 #[cfg(test)]
@@ -321,21 +344,27 @@ mod tests {
                 path,
                 scene_depth: 3.0,
             },
-            allowed: (0.05 * path).max(0.3),
+            allowed: Some((0.05 * path).max(0.3)),
+            reason: "too much drift".into(),
         }
     }
 
     #[test]
     fn refused_loops_are_summed_up_in_one_warning() {
-        assert_eq!(refused_loop_warning(&[]), None);
-        let one = refused_loop_warning(&[refused((90, 10), 2.5, 20.0)]).unwrap();
+        assert!(refused_loop_warnings(&[]).is_empty());
+        let one = refused_loop_warnings(&[refused((90, 10), 2.5, 20.0)]).remove(0);
         assert!(one.starts_with("1 loop by appearance was refused"), "{one}");
-        let many = refused_loop_warning(&[
+        let mut weak = refused((500, 20), 1.0, 90.0);
+        weak.allowed = None;
+        weak.reason = "3 of the old place's 90 points found".into();
+        let warnings = refused_loop_warnings(&[
             refused((90, 10), 2.5, 20.0),
             refused((400, 120), 12.25, 60.0),
+            weak.clone(),
             refused((410, 300), 0.75, 8.0),
-        ])
-        .unwrap();
+        ]);
+        assert_eq!(warnings.len(), 2, "{warnings:?}");
+        let many = &warnings[0];
         assert!(
             many.starts_with("3 loops by appearance were refused"),
             "{many}"
@@ -345,6 +374,13 @@ mod tests {
         assert!(
             many.contains("from frame 400 to frame 120 against 3.00 m allowed over 60.0 m"),
             "{many}"
+        );
+        // The one refused on its evidence, with its reason.
+        assert_eq!(
+            warnings[1],
+            "1 loop detection by appearance was refused on its evidence; the first, from frame \
+             500 to frame 20: 3 of the old place's 90 points found (all in summary.json, \
+             refused_loops)"
         );
     }
 }
