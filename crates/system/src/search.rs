@@ -13,6 +13,18 @@ use vision::fast::Corner;
 use vision::image::GrayImage;
 use vision::patch::{Patch, affine_from_pose, nssd, refine_subpixel, template_with_gradient};
 
+/// A point is searched only if its prediction lies this far inside the image (8 px: an 8×8
+/// patch and its sub-pixel refinement stay inside).
+pub(crate) const PATCH_MARGIN_PX: f64 = 8.0;
+
+/// Cell of the corner index the search queries (16 px: about the wide search radius, so a
+/// query reads a handful of cells).
+pub(crate) const CORNER_CELL_PX: f32 = 16.0;
+
+/// A match this close to a track's position is the corner the track follows (2 px: LK and the
+/// sub-pixel refinement each localise a corner to a fraction of a pixel).
+pub(crate) const SAME_CORNER_PX: f64 = 2.0;
+
 /// A map point as the search needs it, copied out of the graph.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SearchPoint {

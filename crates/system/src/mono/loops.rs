@@ -16,13 +16,15 @@
 //! ([`MonoLoopData::Accepted`]), which corrects the map with them at the end of the run (or
 //! at once, `mono.correct_live`).
 
-use super::{CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX};
 use crate::config::{LoopAgreement, SystemConfig};
 use crate::frame::CornerIndex;
 use crate::keyframes::KeyframeStore;
 use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
 use crate::result::{LoopEvent, LoopEvidence, RefusedLoop};
-use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
+use crate::search::{
+    CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX, SearchPoint, SearchScratch, predict, search,
+    view_angle,
+};
 use crate::session::LoopOutput;
 use crate::session::backend::Stage;
 use geom::PinholeCamera;

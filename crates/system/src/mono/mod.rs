@@ -38,7 +38,10 @@ use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
 use crate::place_recognition::features::extract as extract_features;
 use crate::result::{Relocalisation, RunGraph, SystemError};
-use crate::search::{SearchPoint, SearchScratch, predict, relocate, search, view_angle};
+use crate::search::{
+    CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX, SearchPoint, SearchScratch, predict, relocate,
+    search, view_angle,
+};
 use crate::session::{Context, Finished, Found, Sensor, Step, StepState};
 use crate::tracker::TrackerStats;
 use geom::PinholeCamera;
@@ -657,18 +660,6 @@ impl MonoSensor {
         ctx.timings.record("loop: correction", t.elapsed());
     }
 }
-
-/// A point is searched only if its prediction lies this far inside the image (8 px: an 8×8
-/// patch and its sub-pixel refinement stay inside).
-const PATCH_MARGIN_PX: f64 = 8.0;
-
-/// Cell of the corner index the search queries (16 px: about the wide search radius, so a
-/// query reads a handful of cells).
-const CORNER_CELL_PX: f32 = 16.0;
-
-/// A match this close to a track's position is the corner the track follows (2 px: LK and the
-/// sub-pixel refinement each localise a corner to a fraction of a pixel).
-const SAME_CORNER_PX: f64 = 2.0;
 
 /// A mono keyframe's images: the grey image (the search's templates) and the colour.
 fn keyframe_images(frame: &data::sequence::Frame) -> KeyframeImages {
