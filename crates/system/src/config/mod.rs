@@ -186,10 +186,13 @@ pub struct MonoConfig {
     pub max_loop_drift: Option<f64>,
     /// Correct the map when a loop is accepted, and go on exploring in the corrected map
     /// (thesis ch. 5: the map points of the old place are found again in the corrected map),
-    /// instead of once at the end of the run. With it the run writes only
-    /// `mono.loop_correction`'s correction. Off by default: corrected live, far fewer later
-    /// loops are accepted, and the correction at the end with all of them is the better one
-    /// (bench/README.md, "The defaults' measurements").
+    /// as well as once more at the end of the run. The pose graph is solved in the loop
+    /// closer's thread on a snapshot of the graph and written into it by the tracking thread
+    /// (`mono/loops.rs`, `LiveCorrection`). With it the run writes only
+    /// `mono.loop_correction`'s correction. Off by default: on the rendered town the loops are
+    /// closed where they are found, but the odometry between them drifts more after a
+    /// correction, and in threaded runs tracking was lost after one (bench/README, "Monocular
+    /// loops on their evidence").
     pub correct_live: bool,
     /// Keyframes outside the keyframe BA's window that measure its points join it as fixed
     /// poses, at most this many (10, as many as the window: those measuring most of the

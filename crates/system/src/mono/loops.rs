@@ -16,6 +16,7 @@
 //! ([`MonoLoopData::Accepted`]), which corrects the map with them at the end of the run (or
 //! at once, `mono.correct_live`).
 
+use crate::config::LoopCorrection;
 use crate::config::{LoopAgreement, SystemConfig};
 use crate::frame::CornerIndex;
 use crate::keyframes::KeyframeStore;
@@ -32,11 +33,14 @@ use geom::pnp::PnpEstimator;
 use geom::ransac::{Estimator, RansacConfig, ransac};
 use lie::{LieGroup, Sim3};
 use nalgebra::{Vector2, Vector3};
+use slam::loop_closure::correction::{EdgeInformation, correct_map};
+use slam::loop_closure::{CorrectionGroup, LoopEdge};
 use slam::loop_closure::{DriftLimits, LoopDrift};
 use slam::map::shared::{read_lock, write_lock};
 use slam::map::{KeyframeId, SharedGraph, SlamGraph};
-use slam::pose_graph::rigid_from_similarity;
+use slam::pose_graph::{PoseGraphJacobian, rigid_from_similarity};
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, RwLock};
 use std::time::Instant;
 use vision::bow::Vocabulary;
@@ -88,10 +92,58 @@ struct PlaceFit {
 }
 
 /// What the stage gives back to the monocular sensor.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub(crate) enum MonoLoopData {
     /// A loop accepted (in the map of its keyframes).
     Accepted(LoopDetection),
+    /// The map corrected by its loops accepted so far (`mono.correct_live`), solved in the
+    /// loop closer's thread on a snapshot of the graph.
+    Corrected(LiveCorrection),
+}
+
+/// A correction of one map solved on a snapshot of the graph ([`MonoLoops::correct_live`]):
+/// each keyframe of the snapshot's map with its pose before and after. The tracking thread
+/// applies it to the graph as it is by then ([`LiveCorrection::apply`]).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct LiveCorrection {
+    /// The map.
+    pub map: usize,
+    /// `(keyframe, camera_from_world before, after)`, in id order.
+    pub poses: Vec<(KeyframeId, Sim3, Sim3)>,
+}
+
+impl LiveCorrection {
+    /// Writes the correction into `graph`, which may have moved on since the snapshot: each
+    /// keyframe of the snapshot takes the correction of its world,
+    /// `T_new = T_now · T_before⁻¹ · T_after` (its solved pose if the local optimisation left it
+    /// alone meanwhile), and each keyframe of the map made since takes the correction of the
+    /// snapshot's last keyframe (it was placed relative to it). Anchored points follow their
+    /// keyframes. Keyframes that left the map meanwhile are skipped.
+    pub fn apply(&self, graph: &mut SlamGraph<2>) -> Result<(), slam::map::GraphError> {
+        let delta = |before: &Sim3, after: &Sim3| before.inverse().compose(after);
+        let mut known = BTreeSet::new();
+        for (k, before, after) in &self.poses {
+            known.insert(*k);
+            if let Ok(now) = graph.pose(*k) {
+                graph.set_pose(*k, now.compose(&delta(before, after)))?;
+            }
+        }
+        let Some((_, before, after)) = self.poses.last() else {
+            return Ok(());
+        };
+        let last = delta(before, after);
+        let newer: Vec<KeyframeId> = graph
+            .keyframes()
+            .filter(|(k, kf)| kf.map() == self.map && !known.contains(k))
+            .filter(|(k, _)| self.poses.last().is_some_and(|(l, _, _)| k > l))
+            .map(|(k, _)| k)
+            .collect();
+        for k in newer {
+            let now = graph.pose(k)?;
+            graph.set_pose(k, now.compose(&last))?;
+        }
+        Ok(())
+    }
 }
 
 /// One keyframe for the loop stage.
@@ -175,6 +227,19 @@ pub(crate) struct MonoLoops {
     consistency: usize,
     agreement: LoopAgreement,
     limits: Option<DriftLimits>,
+    /// `mono.correct_live`, and what the correction needs: the double window's edge
+    /// information, `mono.loop_correction`'s group.
+    live: Option<(slam::dwo::DwoParams, LoopCorrection)>,
+    /// The loops accepted so far, per map (the live correction's loop edges).
+    accepted_loops: BTreeMap<usize, Vec<LoopDetection>>,
+    /// A live correction of this map is due (loops were accepted since the last one).
+    due: Option<usize>,
+    /// Live corrections sent, and those the tracking thread has applied (shared with it): a
+    /// correction is solved only once the previous one is in the graph, so that each snapshot
+    /// holds every earlier correction (one solved on a graph without the previous one would
+    /// correct twice).
+    sent: usize,
+    applied: Arc<AtomicUsize>,
     /// The map of the keyframes of the chains below (a new map starts them anew).
     map: Option<usize>,
     /// The latest run of mutually consistent loop detections, and whether it was accepted.
@@ -194,6 +259,7 @@ impl MonoLoops {
         store: Arc<RwLock<KeyframeStore>>,
         camera: PinholeCamera,
         config: &SystemConfig,
+        applied: Arc<AtomicUsize>,
     ) -> Self {
         let mono = &config.mono;
         let place = read_lock(&places).config.clone();
@@ -222,6 +288,13 @@ impl MonoLoops {
                 of_path,
                 of_scene_depth: 0.0,
             }),
+            live: mono
+                .correct_live
+                .then(|| (config.double_window(camera.fx, None), mono.loop_correction)),
+            accepted_loops: BTreeMap::new(),
+            due: None,
+            sent: 0,
+            applied,
             map: None,
             chain: Vec::new(),
             accepted: false,
@@ -242,6 +315,9 @@ impl MonoLoops {
             joins: Vec::new(),
             join_chain: Vec::new(),
             scratch: SearchScratch::default(),
+            accepted_loops: self.accepted_loops.clone(),
+            live: self.live.clone(),
+            applied: self.applied.clone(),
             ..*self
         }
     }
@@ -350,6 +426,7 @@ impl MonoLoops {
             Vec::new()
         };
         let agreeing = self.chain.len();
+        let any = !newly.is_empty();
         for d in newly {
             out.push(LoopOutput::Loop(LoopEvent {
                 keyframe: d.current,
@@ -363,7 +440,59 @@ impl MonoLoops {
                 evidence: d.evidence,
             }));
             out.push(LoopOutput::Sensor(MonoLoopData::Accepted(d)));
+            self.accepted_loops.entry(job.map).or_default().push(d);
         }
+        if any && self.live.is_some() {
+            self.due = Some(job.map);
+        }
+    }
+
+    /// The live correction (`mono.correct_live`; thesis ch. 5, "both ends of the graph
+    /// attached" while the run goes on): the map's pose graph with every loop accepted so far
+    /// ([`map_edges`]) solved on a snapshot of the graph — the graph's lock held only to copy
+    /// it — and given to the tracking thread, which writes it into the graph as it is by then
+    /// ([`LiveCorrection::apply`]) and carries the exploration over.
+    /// Whether a correction was sent.
+    fn correct_live(
+        &mut self,
+        graph: &SharedGraph<2>,
+        map: usize,
+        out: &mut Vec<LoopOutput<MonoLoopData>>,
+    ) -> bool {
+        let Some((dwo, correction)) = &self.live else {
+            return false;
+        };
+        let t = Instant::now();
+        let loops = self.accepted_loops.get(&map).map_or(&[][..], Vec::as_slice);
+        let mut snapshot = graph.snapshot();
+        let before: Vec<(KeyframeId, Sim3)> = snapshot
+            .keyframes()
+            .filter(|(_, kf)| kf.map() == map)
+            .map(|(k, kf)| (k, *kf.camera_from_world()))
+            .collect();
+        let (edges, chain) = map_edges(&snapshot, map, loops, self.theta, dwo);
+        let group = correction_groups(*correction).0;
+        if let Err(e) = correct_loops(
+            &mut snapshot,
+            map,
+            (&edges, &chain),
+            group,
+            lie::LogJacobian::Cbh3,
+        ) {
+            out.push(LoopOutput::Warning(format!(
+                "live loop correction in {group:?}: {e}"
+            )));
+            return false;
+        }
+        let poses = before
+            .into_iter()
+            .filter_map(|(k, b)| Some((k, b, snapshot.pose(k).ok()?)))
+            .collect();
+        out.push(LoopOutput::Sensor(MonoLoopData::Corrected(
+            LiveCorrection { map, poses },
+        )));
+        out.push(LoopOutput::Timing("loop: live correction", t.elapsed()));
+        true
     }
 
     /// Detection `current_from_old` (keyframe `job.keyframe` sees the place of `old`) measured
@@ -642,6 +771,14 @@ impl Stage<2> for MonoLoops {
         }
         let t = Instant::now();
         self.close_loop(graph, job, out);
+        if let Some(map) = self.due
+            && self.applied.load(Ordering::Acquire) == self.sent
+        {
+            self.due = None;
+            if self.correct_live(graph, map, out) {
+                self.sent += 1;
+            }
+        }
         out.push(LoopOutput::Timing(
             "keyframe: place recognition",
             t.elapsed(),
@@ -758,6 +895,157 @@ fn loops_agree(
         && delta.translation().norm() <= agreement.translation * depth
 }
 
+/// `mono.loop_correction`'s group and the other one.
+pub(crate) fn correction_groups(correction: LoopCorrection) -> (CorrectionGroup, CorrectionGroup) {
+    match correction {
+        LoopCorrection::Se3 => (CorrectionGroup::Se3, CorrectionGroup::Sim3),
+        LoopCorrection::Sim3 => (CorrectionGroup::Sim3, CorrectionGroup::Se3),
+    }
+}
+
+/// The pose graph of map `map` (positions in its chain of keyframes, id order): its loop
+/// edges — the accepted `loops` (thesis §5.3.2) and the covisibility edges, every pair of
+/// keyframes sharing at least `theta` map points, not consecutive, constrained to their
+/// relative pose in the map as it is (scale 1) — and the informations of its consecutive
+/// constraints. With map reuse the map holds keyframes far apart on the path that measure the
+/// same points (a revisited place whose points were found again): the loop there is already
+/// closed, and the covisibility edges keep it closed.
+///
+/// **Information** (thesis eq. 6.2, the double window's coarse information,
+/// `slam::dwo::DwoParams::edge_precision`): an edge between keyframes `i` and `j` that share
+/// `w` points seen by `j` at median depth `d̄` is worth `w·diag(λ_trans²·I₃, λ_rot²·I₃,
+/// λ_rot²)`, `λ_rot = (f/σ)·‖t_ji‖/d̄`, `λ_trans = λ_rot/d̄`: the relative pose is measured
+/// through the points' parallax, and a rotation `δθ` moves the points in the image as much as
+/// a translation `d̄·δθ`. With the identity instead, bending the chain by small rotations was
+/// the cheapest way to absorb a loop's correction on a drive, and the correction made the
+/// trajectory worse than the live one (rendered town, bench/README). A loop edge's relative
+/// pose is measured against the old place's points, whose positions the map already holds
+/// (no parallax needed): `w` the points found, `λ_rot = f/σ`, its scale's precision
+/// `1/(σ_s² + 1/(w·λ_rot²))` from the fit's standard error `σ_s`
+/// (`loops::MonoLoops::fit_old_place`); a loop without it has the same scale precision as its
+/// rotation.
+pub(crate) fn map_edges(
+    graph: &SlamGraph<2>,
+    map: usize,
+    loops: &[LoopDetection],
+    theta: usize,
+    dwo: &slam::dwo::DwoParams,
+) -> (Vec<LoopEdge>, Vec<EdgeInformation>) {
+    let chain: Vec<KeyframeId> = graph
+        .keyframes()
+        .filter(|(_, kf)| kf.map() == map)
+        .map(|(k, _)| k)
+        .collect();
+    let position: BTreeMap<KeyframeId, usize> =
+        chain.iter().enumerate().map(|(i, &k)| (k, i)).collect();
+    let mut shared: BTreeMap<(KeyframeId, KeyframeId), usize> = Default::default();
+    for (_, point) in graph.points() {
+        let observers: Vec<KeyframeId> = point
+            .observers()
+            .iter()
+            .copied()
+            .filter(|k| position.contains_key(k))
+            .collect();
+        for (i, &a) in observers.iter().enumerate() {
+            for &b in &observers[i + 1..] {
+                *shared.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+    }
+    let depth: BTreeMap<KeyframeId, f64> = chain
+        .iter()
+        .filter_map(|&k| {
+            let mut d: Vec<f64> = slam::loop_closure::constraint::depth_samples(graph, k)
+                .into_iter()
+                .map(|(_, d)| d)
+                .collect();
+            (!d.is_empty()).then(|| {
+                let mid = d.len() / 2;
+                (k, *d.select_nth_unstable_by(mid, f64::total_cmp).1)
+            })
+        })
+        .collect();
+    let relative = |a: KeyframeId, b: KeyframeId| -> Option<Sim3> {
+        Some(graph.pose(a).ok()?.compose(&graph.pose(b).ok()?.inverse()))
+    };
+    // Edge `a → b` (`b` the younger): `w` shared points at `b`'s median depth.
+    let information = |a: KeyframeId, b: KeyframeId, w: usize| -> Option<EdgeInformation> {
+        let d = *depth.get(&b)?;
+        let t = rigid_from_similarity(&relative(a, b)?).translation().norm();
+        let (trans, rot) = dwo.edge_precision(t, d);
+        let w = w.max(1) as f64;
+        Some(EdgeInformation {
+            translation: w * trans,
+            rotation: w * rot,
+            scale: w * rot,
+        })
+    };
+    let chain_information: Vec<EdgeInformation> = chain
+        .windows(2)
+        .map(|p| {
+            let w = shared.get(&(p[0], p[1])).copied().unwrap_or(0);
+            information(p[0], p[1], w).unwrap_or(EdgeInformation {
+                translation: 1.0,
+                rotation: 1.0,
+                scale: 1.0,
+            })
+        })
+        .collect();
+    let mut edges: Vec<LoopEdge> = loops
+        .iter()
+        .filter_map(|d| {
+            let w = d.evidence.map_or(theta, |e| e.old_points_found).max(1) as f64;
+            let rot = w * dwo.angular_precision.powi(2);
+            let scale = d.scale_sigma.map_or(rot, |s| 1.0 / (s * s + 1.0 / rot));
+            Some(LoopEdge {
+                old: *position.get(&d.old)?,
+                current: *position.get(&d.current)?,
+                old_from_current: d.current_from_old.inverse(),
+                information: Some(EdgeInformation {
+                    translation: rot / depth.get(&d.old)?.powi(2),
+                    rotation: rot,
+                    scale,
+                }),
+            })
+        })
+        .collect();
+    edges.extend(
+        shared
+            .iter()
+            .filter(|&(&(a, b), &n)| n >= theta && position[&b] > position[&a] + 1)
+            .filter_map(|(&(a, b), &n)| {
+                Some(LoopEdge {
+                    old: position[&a],
+                    current: position[&b],
+                    old_from_current: relative(a, b)?,
+                    information: information(a, b, n),
+                })
+            }),
+    );
+    (edges, chain_information)
+}
+
+/// Corrects map `map` of `graph` through the pose graph of its keyframe chain and `edges` in
+/// `group` (`slam::loop_closure::correction::correct_map`, 50 Levenberg-Marquardt iterations,
+/// one thread), with the Jacobians `log` (the exact ones at the end of the run; the thesis's
+/// third-order CBH while the run goes on, eq. 5.22: the exact Sim(3) one integrates `Ad` by
+/// quadrature per residual, and took minutes per correction of a drive's graph).
+pub(crate) fn correct_loops(
+    graph: &mut SlamGraph<2>,
+    map: usize,
+    (edges, chain): (&[LoopEdge], &[EdgeInformation]),
+    group: CorrectionGroup,
+    log: lie::LogJacobian,
+) -> Result<(), slam::loop_closure::correction::CorrectionError> {
+    let options = lsq::SolverOptions {
+        max_iterations: 50,
+        threads: Some(1),
+        ..lsq::SolverOptions::default()
+    };
+    let jacobian = PoseGraphJacobian::Analytic(log);
+    correct_map(graph, map, (edges, chain), group, jacobian, &options).map(|_| ())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -775,6 +1063,88 @@ mod tests {
                 .unwrap();
         }
         g
+    }
+
+    /// A live correction solved on a snapshot of keyframes 0–5 is written into a graph that has
+    /// moved on: keyframe 3 was moved by the local optimisation meanwhile and keeps that move
+    /// under the correction, keyframe 6 was made since and takes keyframe 5's correction, and
+    /// each keyframe's point follows it.
+    #[test]
+    fn a_live_correction_is_written_into_a_graph_that_moved_on() {
+        let mut g = corridor(6);
+        let id = KeyframeId::from_index;
+        let poses: Vec<(KeyframeId, Sim3, Sim3)> = (0..6)
+            .map(|k| {
+                let before = g.pose(id(k)).unwrap();
+                // The correction: keyframe k moves by 0.1·k along y and takes scale 1 + 0.01·k.
+                let world_move = Sim3::new(
+                    lie::So3::identity(),
+                    Vector3::new(0.0, 0.1 * k as f64, 0.0),
+                    1.0 + 0.01 * k as f64,
+                )
+                .unwrap();
+                (id(k), before, before.compose(&world_move))
+            })
+            .collect();
+        let correction = LiveCorrection {
+            map: 0,
+            poses: poses.clone(),
+        };
+        // Meanwhile: keyframe 3 moved 0.05 along x; keyframe 6 was made 1 m after keyframe 5.
+        let nudge = Sim3::from_se3(&Se3::new(
+            lie::So3::identity(),
+            Vector3::new(-0.05, 0.0, 0.0),
+        ));
+        let moved = nudge.compose(&g.pose(id(3)).unwrap());
+        g.set_pose(id(3), moved).unwrap();
+        let six = g.add_keyframe(Sim3::from_se3(
+            &Se3::new(lie::So3::identity(), Vector3::new(6.0, 0.0, 0.0)).inverse(),
+        ));
+        let point_world = |g: &SlamGraph<2>, k: usize| {
+            let p = g
+                .keyframe(id(k))
+                .unwrap()
+                .observations()
+                .keys()
+                .next()
+                .copied();
+            p.map(|p| g.point_world(p).unwrap())
+        };
+        let before_points: Vec<_> = (0..6).map(|k| point_world(&g, k).unwrap()).collect();
+        correction.apply(&mut g).unwrap();
+        for (k, before, after) in &poses {
+            let now = g.pose(*k).unwrap();
+            let expected = if *k == id(3) {
+                moved.compose(&before.inverse()).compose(after)
+            } else {
+                *after
+            };
+            assert!(
+                now.compose(&expected.inverse()).log().norm() < 1e-9,
+                "keyframe {k}"
+            );
+            // The point follows its anchor: where it was in the anchor's frame.
+            let p = point_world(&g, k.index()).unwrap();
+            let in_anchor = |t: &Sim3, x: &Vector3<f64>| t.act(x);
+            let was = if *k == id(3) { moved } else { *before };
+            assert!(
+                (in_anchor(&now, &p) - in_anchor(&was, &before_points[k.index()])).norm() < 1e-9,
+                "point of keyframe {k}"
+            );
+        }
+        let (_, before5, after5) = poses[5];
+        let expected6 =
+            Sim3::from_se3(&Se3::new(lie::So3::identity(), Vector3::new(6.0, 0.0, 0.0)).inverse())
+                .compose(&before5.inverse())
+                .compose(&after5);
+        assert!(
+            g.pose(six)
+                .unwrap()
+                .compose(&expected6.inverse())
+                .log()
+                .norm()
+                < 1e-9
+        );
     }
 
     #[test]

@@ -33,7 +33,7 @@
 pub(crate) mod loops;
 pub(crate) mod tracks;
 
-use crate::config::{LoopCorrection, SystemConfig};
+use crate::config::SystemConfig;
 use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
 use crate::place_recognition::features::extract as extract_features;
@@ -46,15 +46,16 @@ use crate::session::{Context, Finished, Found, Sensor, Step, StepState};
 use crate::tracker::TrackerStats;
 use geom::PinholeCamera;
 use lie::{LieGroup, Se3, Sim3};
-use loops::{LoopDetection, MonoLoopData, MonoLoopJob, MonoLoops, MonoPlaces};
+use loops::{
+    LoopDetection, MonoLoopData, MonoLoopJob, MonoLoops, MonoPlaces, correct_loops,
+    correction_groups, map_edges,
+};
 use nalgebra::{Vector2, Vector3};
 use slam::exploration::{ExplorationError, FrameOutcome, MonoExplorer, TrackId, rigid_pose};
-use slam::loop_closure::correction::EdgeInformation;
-use slam::loop_closure::correction::correct_map;
-use slam::loop_closure::{CorrectionGroup, LoopEdge};
+use slam::loop_closure::CorrectionGroup;
 use slam::map::shared::{read_lock, write_lock};
 use slam::map::{KeyframeId, SlamGraph};
-use slam::pose_graph::{PoseGraphJacobian, rigid_from_similarity};
+use slam::pose_graph::rigid_from_similarity;
 use std::collections::{BTreeMap, HashSet};
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
@@ -102,6 +103,8 @@ pub(crate) struct MonoSensor {
     places: Option<Arc<RwLock<MonoPlaces>>>,
     /// The loops accepted, per map.
     accepted: BTreeMap<usize, Vec<LoopDetection>>,
+    /// Live loop corrections written into the graph (shared with the loop stage).
+    corrections_applied: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl MonoSensor {
@@ -120,6 +123,7 @@ impl MonoSensor {
             scratch: SearchScratch::default(),
             places: None,
             accepted: BTreeMap::new(),
+            corrections_applied: Default::default(),
         }
     }
 
@@ -134,7 +138,13 @@ impl MonoSensor {
         let place = config.place_recognition_for(None);
         let places = Arc::new(RwLock::new(MonoPlaces::new(vocabulary, place)));
         self.places = Some(places.clone());
-        MonoLoops::new(places, store, self.camera, config)
+        MonoLoops::new(
+            places,
+            store,
+            self.camera,
+            config,
+            self.corrections_applied.clone(),
+        )
     }
 
     /// Whether a lost camera looks for its place in the current map: a map of two keyframes
@@ -637,28 +647,6 @@ impl MonoSensor {
         }
         found
     }
-
-    /// The loops accepted so far correct the current map now (`mono.correct_live`), in
-    /// `mono.loop_correction`'s group, and the exploration goes on in the corrected map.
-    fn correct_live(&mut self, ctx: &mut Ctx) {
-        let Some(explorer) = self.explorer.as_mut() else {
-            return;
-        };
-        let t = Instant::now();
-        let mut graph = ctx.graph.write();
-        let map = graph.current_map();
-        let loops = self.accepted.get(&map).map_or(&[][..], Vec::as_slice);
-        let dwo = ctx.config.double_window(self.camera.fx, None);
-        let (edges, chain) = map_edges(&graph, map, loops, ctx.config.mapping.theta, &dwo);
-        let group = correction_groups(ctx.config.mono.loop_correction).0;
-        if let Err(e) = explorer.correct_map(&mut graph, |g| {
-            correct_loops(g, map, (&edges, &chain), group)
-        }) {
-            ctx.warnings
-                .push(format!("loop correction in {group:?}: {e}"));
-        }
-        ctx.timings.record("loop: correction", t.elapsed());
-    }
 }
 
 /// A mono keyframe's images: the grey image (the search's templates) and the colour.
@@ -724,154 +712,6 @@ fn covisible_neighbourhood(
         }
     }
     seen
-}
-
-/// `mono.loop_correction`'s group and the other one.
-fn correction_groups(correction: LoopCorrection) -> (CorrectionGroup, CorrectionGroup) {
-    match correction {
-        LoopCorrection::Se3 => (CorrectionGroup::Se3, CorrectionGroup::Sim3),
-        LoopCorrection::Sim3 => (CorrectionGroup::Sim3, CorrectionGroup::Se3),
-    }
-}
-
-/// The pose graph of map `map` (positions in its chain of keyframes, id order): its loop
-/// edges — the accepted `loops` (thesis §5.3.2) and the covisibility edges, every pair of
-/// keyframes sharing at least `theta` map points, not consecutive, constrained to their
-/// relative pose in the map as it is (scale 1) — and the informations of its consecutive
-/// constraints. With map reuse the map holds keyframes far apart on the path that measure the
-/// same points (a revisited place whose points were found again): the loop there is already
-/// closed, and the covisibility edges keep it closed.
-///
-/// **Information** (thesis eq. 6.2, the double window's coarse information,
-/// `slam::dwo::DwoParams::edge_precision`): an edge between keyframes `i` and `j` that share
-/// `w` points seen by `j` at median depth `d̄` is worth `w·diag(λ_trans²·I₃, λ_rot²·I₃,
-/// λ_rot²)`, `λ_rot = (f/σ)·‖t_ji‖/d̄`, `λ_trans = λ_rot/d̄`: the relative pose is measured
-/// through the points' parallax, and a rotation `δθ` moves the points in the image as much as
-/// a translation `d̄·δθ`. With the identity instead, bending the chain by small rotations was
-/// the cheapest way to absorb a loop's correction on a drive, and the correction made the
-/// trajectory worse than the live one (rendered town, bench/README). A loop edge's relative
-/// pose is measured against the old place's points, whose positions the map already holds
-/// (no parallax needed): `w` the points found, `λ_rot = f/σ`, its scale's precision
-/// `1/(σ_s² + 1/(w·λ_rot²))` from the fit's standard error `σ_s`
-/// (`loops::MonoLoops::fit_old_place`); a loop without it has the same scale precision as its
-/// rotation.
-fn map_edges(
-    graph: &SlamGraph<2>,
-    map: usize,
-    loops: &[LoopDetection],
-    theta: usize,
-    dwo: &slam::dwo::DwoParams,
-) -> (Vec<LoopEdge>, Vec<EdgeInformation>) {
-    let chain: Vec<KeyframeId> = graph
-        .keyframes()
-        .filter(|(_, kf)| kf.map() == map)
-        .map(|(k, _)| k)
-        .collect();
-    let position: BTreeMap<KeyframeId, usize> =
-        chain.iter().enumerate().map(|(i, &k)| (k, i)).collect();
-    let mut shared: BTreeMap<(KeyframeId, KeyframeId), usize> = Default::default();
-    for (_, point) in graph.points() {
-        let observers: Vec<KeyframeId> = point
-            .observers()
-            .iter()
-            .copied()
-            .filter(|k| position.contains_key(k))
-            .collect();
-        for (i, &a) in observers.iter().enumerate() {
-            for &b in &observers[i + 1..] {
-                *shared.entry((a.min(b), a.max(b))).or_default() += 1;
-            }
-        }
-    }
-    let depth: BTreeMap<KeyframeId, f64> = chain
-        .iter()
-        .filter_map(|&k| {
-            let mut d: Vec<f64> = slam::loop_closure::constraint::depth_samples(graph, k)
-                .into_iter()
-                .map(|(_, d)| d)
-                .collect();
-            (!d.is_empty()).then(|| {
-                let mid = d.len() / 2;
-                (k, *d.select_nth_unstable_by(mid, f64::total_cmp).1)
-            })
-        })
-        .collect();
-    let relative = |a: KeyframeId, b: KeyframeId| -> Option<Sim3> {
-        Some(graph.pose(a).ok()?.compose(&graph.pose(b).ok()?.inverse()))
-    };
-    // Edge `a → b` (`b` the younger): `w` shared points at `b`'s median depth.
-    let information = |a: KeyframeId, b: KeyframeId, w: usize| -> Option<EdgeInformation> {
-        let d = *depth.get(&b)?;
-        let t = rigid_from_similarity(&relative(a, b)?).translation().norm();
-        let (trans, rot) = dwo.edge_precision(t, d);
-        let w = w.max(1) as f64;
-        Some(EdgeInformation {
-            translation: w * trans,
-            rotation: w * rot,
-            scale: w * rot,
-        })
-    };
-    let chain_information: Vec<EdgeInformation> = chain
-        .windows(2)
-        .map(|p| {
-            let w = shared.get(&(p[0], p[1])).copied().unwrap_or(0);
-            information(p[0], p[1], w).unwrap_or(EdgeInformation {
-                translation: 1.0,
-                rotation: 1.0,
-                scale: 1.0,
-            })
-        })
-        .collect();
-    let mut edges: Vec<LoopEdge> = loops
-        .iter()
-        .filter_map(|d| {
-            let w = d.evidence.map_or(theta, |e| e.old_points_found).max(1) as f64;
-            let rot = w * dwo.angular_precision.powi(2);
-            let scale = d.scale_sigma.map_or(rot, |s| 1.0 / (s * s + 1.0 / rot));
-            Some(LoopEdge {
-                old: *position.get(&d.old)?,
-                current: *position.get(&d.current)?,
-                old_from_current: d.current_from_old.inverse(),
-                information: Some(EdgeInformation {
-                    translation: rot / depth.get(&d.old)?.powi(2),
-                    rotation: rot,
-                    scale,
-                }),
-            })
-        })
-        .collect();
-    edges.extend(
-        shared
-            .iter()
-            .filter(|&(&(a, b), &n)| n >= theta && position[&b] > position[&a] + 1)
-            .filter_map(|(&(a, b), &n)| {
-                Some(LoopEdge {
-                    old: position[&a],
-                    current: position[&b],
-                    old_from_current: relative(a, b)?,
-                    information: information(a, b, n),
-                })
-            }),
-    );
-    (edges, chain_information)
-}
-
-/// Corrects map `map` of `graph` through the pose graph of its keyframe chain and `edges` in
-/// `group` (`slam::loop_closure::correction::correct_map`, 50 Levenberg-Marquardt iterations,
-/// one thread, exact Jacobians).
-fn correct_loops(
-    graph: &mut SlamGraph<2>,
-    map: usize,
-    (edges, chain): (&[LoopEdge], &[EdgeInformation]),
-    group: CorrectionGroup,
-) -> Result<(), slam::loop_closure::correction::CorrectionError> {
-    let options = lsq::SolverOptions {
-        max_iterations: 50,
-        threads: Some(1),
-        ..lsq::SolverOptions::default()
-    };
-    let jacobian = PoseGraphJacobian::Analytic(lie::LogJacobian::Exact);
-    correct_map(graph, map, (edges, chain), group, jacobian, &options).map(|_| ())
 }
 
 impl Sensor<2> for MonoSensor {
@@ -981,12 +821,34 @@ impl Sensor<2> for MonoSensor {
         )))
     }
 
+    /// An accepted loop joins the map's loops (the `refind` neighbourhood, the correction at
+    /// the end); a live correction (`mono.correct_live`) is written into the graph, and the
+    /// exploration goes on in the corrected map (`MonoExplorer::correct_map`: the motion
+    /// model and the last pose follow the last keyframe).
     fn loop_data(&mut self, ctx: &mut Ctx, data: MonoLoopData) {
-        let MonoLoopData::Accepted(d) = data;
-        let map = ctx.graph.read().map_of(d.current).unwrap_or_default();
-        self.accepted.entry(map).or_default().push(d);
-        if ctx.config.mono.correct_live && ctx.graph.read().current_map() == map {
-            self.correct_live(ctx);
+        match data {
+            MonoLoopData::Accepted(d) => {
+                let map = ctx.graph.read().map_of(d.current).unwrap_or_default();
+                self.accepted.entry(map).or_default().push(d);
+            }
+            MonoLoopData::Corrected(correction) => {
+                let t = Instant::now();
+                let mut graph = ctx.graph.write();
+                let result = match self.explorer.as_mut() {
+                    Some(explorer) if graph.current_map() == correction.map => {
+                        explorer.correct_map(&mut graph, |g| correction.apply(g))
+                    }
+                    _ => correction.apply(&mut graph),
+                };
+                if let Err(e) = result {
+                    ctx.warnings.push(format!("live loop correction: {e}"));
+                }
+                // Counted applied even if it failed: the loop stage may solve the next one.
+                self.corrections_applied
+                    .fetch_add(1, std::sync::atomic::Ordering::Release);
+                ctx.timings
+                    .record("loop: live correction applied", t.elapsed());
+            }
         }
     }
 
@@ -1013,7 +875,13 @@ impl Sensor<2> for MonoSensor {
             let dwo = ctx.config.double_window(self.camera.fx, None);
             let (edges, chain) = map_edges(&graph, map, loops, ctx.config.mapping.theta, &dwo);
             let t = Instant::now();
-            if let Err(e) = correct_loops(&mut corrected, map, (&edges, &chain), primary) {
+            if let Err(e) = correct_loops(
+                &mut corrected,
+                map,
+                (&edges, &chain),
+                primary,
+                lie::LogJacobian::Exact,
+            ) {
                 ctx.warnings
                     .push(format!("loop correction of map {map} in {primary:?}: {e}"));
                 // The map stays as it was.
@@ -1022,7 +890,8 @@ impl Sensor<2> for MonoSensor {
                 }
             }
             if let Some(g) = alternative.as_mut()
-                && let Err(e) = correct_loops(g, map, (&edges, &chain), other)
+                && let Err(e) =
+                    correct_loops(g, map, (&edges, &chain), other, lie::LogJacobian::Exact)
             {
                 ctx.warnings
                     .push(format!("loop correction of map {map} in {other:?}: {e}"));
