@@ -9,6 +9,7 @@ use geom::PinholeCamera;
 use lie::{LieGroup, Se3};
 use nalgebra::{Matrix2, Vector2, Vector3};
 use slam::map::{KeyframeId, PointId, SlamGraph};
+use slam::pose_graph::rigid_from_similarity;
 use vision::fast::Corner;
 use vision::image::GrayImage;
 use vision::patch::{Patch, affine_from_pose, nssd, refine_subpixel, template_with_gradient};
@@ -48,13 +49,18 @@ impl SearchPoint {
         let pt = graph.point(p)?;
         let anchor = pt.anchor();
         let z = graph.keyframe(anchor)?.observations().get(&p)?;
+        // The anchor's rigid pose in world units, `(R, t/s)`: a monocular keyframe carries a
+        // scale `s` after a Sim(3) loop correction, and its camera frame is then `s` times the
+        // world's; the depth is taken in world units too, as the search's relative poses are.
+        let anchor_from_world = rigid_from_similarity(&graph.pose(anchor).ok()?);
+        let world = graph.point_world(p).ok()?;
         Some(SearchPoint {
             point: p,
             anchor,
             anchor_pixel: Vector2::new(z[0], z[1]),
-            anchor_depth: graph.point_in_anchor(p).ok()?.z,
-            anchor_from_world: graph.pose(anchor).ok()?.rigid_part(),
-            world: graph.point_world(p).ok()?,
+            anchor_depth: anchor_from_world.act(&world).z,
+            anchor_from_world,
+            world,
         })
     }
 }
