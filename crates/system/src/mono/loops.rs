@@ -914,11 +914,16 @@ pub(crate) fn correction_groups(correction: LoopCorrection) -> (CorrectionGroup,
 /// **Information** (thesis eq. 6.2, the double window's coarse information,
 /// `slam::dwo::DwoParams::edge_precision`): an edge between keyframes `i` and `j` that share
 /// `w` points seen by `j` at median depth `d̄` is worth `w·diag(λ_trans²·I₃, λ_rot²·I₃,
-/// λ_rot²)`, `λ_rot = (f/σ)·‖t_ji‖/d̄`, `λ_trans = λ_rot/d̄`: the relative pose is measured
-/// through the points' parallax, and a rotation `δθ` moves the points in the image as much as
-/// a translation `d̄·δθ`. With the identity instead, bending the chain by small rotations was
-/// the cheapest way to absorb a loop's correction on a drive, and the correction made the
-/// trajectory worse than the live one (rendered town, bench/README). A loop edge's relative
+/// λ_scale²)`: as the thesis has it, `λ_rot = f/σ` constant (two views fix their relative
+/// rotation through the points' directions alone, whatever the baseline) and `λ_trans`
+/// proportional to the parallax, `λ_trans = (f/σ)·(‖t_ji‖/d̄)/d̄`; the scale, which a monocular
+/// map carries from keyframe to keyframe through the depths of points triangulated over that
+/// parallax, `λ_scale = (f/σ)·‖t_ji‖/d̄`. With the identity instead, bending the chain by small
+/// rotations was the cheapest way to absorb a loop's correction on a drive, and the correction
+/// made the trajectory worse than the live one (rendered town); with the rotation's precision
+/// scaled by the parallax as well (the double window's `edge_precision`), the chain bent where
+/// the camera moved little and the rendered building's correction lost a third of its gain
+/// (bench/README, seventeenth session). A loop edge's relative
 /// pose is measured against the old place's points, whose positions the map already holds
 /// (no parallax needed): `w` the points found, `λ_rot = f/σ`, its scale's precision
 /// `1/(σ_s² + 1/(w·λ_rot²))` from the fit's standard error `σ_s`
@@ -972,12 +977,12 @@ pub(crate) fn map_edges(
     let information = |a: KeyframeId, b: KeyframeId, w: usize| -> Option<EdgeInformation> {
         let d = *depth.get(&b)?;
         let t = rigid_from_similarity(&relative(a, b)?).translation().norm();
-        let (trans, rot) = dwo.edge_precision(t, d);
+        let (trans, parallax_rot) = dwo.edge_precision(t, d);
         let w = w.max(1) as f64;
         Some(EdgeInformation {
             translation: w * trans,
-            rotation: w * rot,
-            scale: w * rot,
+            rotation: w * dwo.angular_precision.powi(2),
+            scale: w * parallax_rot,
         })
     };
     let chain_information: Vec<EdgeInformation> = chain
