@@ -189,10 +189,11 @@ pub struct MonoConfig {
     /// as well as once more at the end of the run. The pose graph is solved in the loop
     /// closer's thread on a snapshot of the graph and written into it by the tracking thread
     /// (`mono/loops.rs`, `LiveCorrection`). With it the run writes only
-    /// `mono.loop_correction`'s correction. Off by default: on the rendered town the loops are
-    /// closed where they are found, but the odometry between them drifts more after a
-    /// correction, and in threaded runs tracking was lost after one (bench/README, "Monocular
-    /// loops on their evidence").
+    /// `mono.loop_correction`'s correction. Off by default: the loops are closed where they
+    /// are found, and the building and the town's seed 1 end better for it, but on seed 2 the
+    /// odometry between the loops drifts more after a correction, and in threaded runs
+    /// tracking was lost after one (bench/README, "Monocular loops on their evidence" and
+    /// "The loop correction's pose graph with eq. 6.2 as the thesis writes it").
     pub correct_live: bool,
     /// Keyframes outside the keyframe BA's window that measure its points join it as fixed
     /// poses, at most this many (10, as many as the window: those measuring most of the
