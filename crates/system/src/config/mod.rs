@@ -192,7 +192,8 @@ pub struct MonoConfig {
     /// `mono.loop_correction`'s correction. Off by default: the loops are closed where they
     /// are found, and the building and the town's seed 1 end better for it, but on seed 2 the
     /// odometry between the loops drifts more after a correction, and in threaded runs
-    /// tracking was lost after one (bench/README, "Monocular loops on their evidence" and
+    /// tracking was lost after one, or the end-of-run trajectory came out 112–135 m off on the
+    /// town (bench/README, "Monocular loops on their evidence" and
     /// "The loop correction's pose graph with eq. 6.2 as the thesis writes it").
     pub correct_live: bool,
     /// Keyframes outside the keyframe BA's window that measure its points join it as fixed
