@@ -970,13 +970,32 @@ pub(crate) fn map_edges(
             })
         })
         .collect();
-    let relative = |a: KeyframeId, b: KeyframeId| -> Option<Sim3> {
-        Some(graph.pose(a).ok()?.compose(&graph.pose(b).ok()?.inverse()))
+    // The pose graph's vertices are the keyframes' rigid poses `(R, t/s)`
+    // (`correct_map`), a keyframe's stored similarity `T_k = S(s_k)·V_k`; a relative pose
+    // `a_from_b` measured between the stored (keyframe-local) frames is the edge
+    // `V_a·V_b⁻¹ = S(s_a)⁻¹·a_from_b·S(s_b)`. Once a correction has given the keyframes
+    // scales other than 1 (a live correction, a map join), an edge taken between the stored
+    // frames instead would carry their scale ratio into the next correction, which then
+    // compounded it: the threaded live correction's graph reached keyframe scales of 1e-20 and
+    // 1e13 after eleven corrections (rendered town, seventeenth session).
+    let stored_scale = |k: KeyframeId| graph.pose(k).ok().map(|p| p.scale());
+    let between_vertices = |a: KeyframeId, a_from_b: &Sim3, b: KeyframeId| -> Option<Sim3> {
+        let scaling = |s: f64| Sim3::new(lie::So3::identity(), Vector3::zeros(), s).ok();
+        Some(
+            scaling(1.0 / stored_scale(a)?)?
+                .compose(a_from_b)
+                .compose(&scaling(stored_scale(b)?)?),
+        )
     };
-    // Edge `a → b` (`b` the younger): `w` shared points at `b`'s median depth.
+    let relative = |a: KeyframeId, b: KeyframeId| -> Option<Sim3> {
+        let rigid = |k: KeyframeId| graph.pose(k).ok().map(|p| rigid_from_similarity(&p));
+        Some(Sim3::from_se3(&rigid(a)?.compose(&rigid(b)?.inverse())))
+    };
+    // Edge `a → b` (`b` the younger): `w` shared points at `b`'s median depth (in the
+    // vertices' units: a stored frame's depths are `s_b` times the world's).
     let information = |a: KeyframeId, b: KeyframeId, w: usize| -> Option<EdgeInformation> {
-        let d = *depth.get(&b)?;
-        let t = rigid_from_similarity(&relative(a, b)?).translation().norm();
+        let d = *depth.get(&b)? / stored_scale(b)?;
+        let t = relative(a, b)?.translation().norm();
         let (trans, parallax_rot) = dwo.edge_precision(t, d);
         let w = w.max(1) as f64;
         Some(EdgeInformation {
@@ -1002,12 +1021,19 @@ pub(crate) fn map_edges(
             let w = d.evidence.map_or(theta, |e| e.old_points_found).max(1) as f64;
             let rot = w * dwo.angular_precision.powi(2);
             let scale = d.scale_sigma.map_or(rot, |s| 1.0 / (s * s + 1.0 / rot));
+            let depth_old = depth.get(&d.old)? / stored_scale(d.old)?;
             Some(LoopEdge {
                 old: *position.get(&d.old)?,
                 current: *position.get(&d.current)?,
-                old_from_current: d.current_from_old.inverse(),
+                // Measured between the keyframes' stored frames, whose points keep their
+                // local coordinates through a correction.
+                old_from_current: between_vertices(
+                    d.old,
+                    &d.current_from_old.inverse(),
+                    d.current,
+                )?,
                 information: Some(EdgeInformation {
-                    translation: rot / depth.get(&d.old)?.powi(2),
+                    translation: rot / depth_old.powi(2),
                     rotation: rot,
                     scale,
                 }),
@@ -1150,6 +1176,63 @@ mod tests {
                 .norm()
                 < 1e-9
         );
+    }
+
+    /// A correction solved again on a graph it has corrected already, with the same loop, moves
+    /// it little: the edges are taken between the pose graph's vertices (the rigid poses), so
+    /// the scales the first correction gave the keyframes are not taken for measurements. The
+    /// threaded live correction compounded them from one correction to the next (keyframe
+    /// scales of 1e-20 and 1e13 after eleven).
+    #[test]
+    fn a_second_correction_with_the_same_loop_keeps_the_first() {
+        let mut g = corridor(12);
+        let id = KeyframeId::from_index;
+        let dwo = SystemConfig::default().double_window(500.0, None);
+        // Keyframe 11 sees keyframe 0's place 0.3 m to its side, at 1.1 times its scale.
+        let detection = LoopDetection {
+            current: id(11),
+            old: id(0),
+            current_from_old: Sim3::new(lie::So3::identity(), Vector3::new(0.3, 0.0, 0.0), 1.1)
+                .unwrap(),
+            drift: None,
+            evidence: None,
+            scale_sigma: None,
+        };
+        let correct = |g: &mut SlamGraph<2>| {
+            let (edges, chain) = map_edges(g, 0, &[detection], 20, &dwo);
+            correct_loops(
+                g,
+                0,
+                (&edges, &chain),
+                CorrectionGroup::Sim3,
+                lie::LogJacobian::Exact,
+            )
+            .unwrap();
+        };
+        let before = g.clone();
+        correct(&mut g);
+        let once = g.clone();
+        correct(&mut g);
+        let moved = |a: &SlamGraph<2>, b: &SlamGraph<2>, k: usize| {
+            let (pa, pb) = (a.pose(id(k)).unwrap(), b.pose(id(k)).unwrap());
+            let centre = |p: &Sim3| *rigid_from_similarity(p).inverse().translation();
+            (
+                (centre(&pa) - centre(&pb)).norm(),
+                (pa.scale() / pb.scale()).ln().abs(),
+            )
+        };
+        let (first, first_scale) = moved(&before, &once, 11);
+        assert!(
+            first > 1.0 && first_scale > 0.05,
+            "{first} m, {first_scale}"
+        );
+        for k in 0..12 {
+            let (again, again_scale) = moved(&once, &g, k);
+            assert!(
+                again < 0.05 * first && again_scale < 0.05 * first_scale,
+                "keyframe {k}: {again} m, ln scale {again_scale} (first: {first} m, {first_scale})"
+            );
+        }
     }
 
     #[test]

@@ -17,8 +17,9 @@
 //!
 //! A new keyframe's images go into the session's store and the keyframe to the back-end's loop
 //! stage ([`loops`]: loops and map joins by appearance, in Sim(3)); the loops accepted correct
-//! the map at the end of the run (`mono.correct_live`: at once), in `mono.loop_correction`'s
-//! group, each map of the graph through the pose graph of its own keyframes.
+//! the map while the run goes on (`mono.correct_live`; off: at the end of the run only) and
+//! once more at its end, in `mono.loop_correction`'s group, each map of the graph through the
+//! pose graph of its own keyframes.
 //!
 //! When tracking loses the map (the tracks cannot follow into `mono.max_refused` frames in a
 //! row, or too few map points are measured), the camera is lost: the session looks for each
