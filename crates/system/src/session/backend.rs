@@ -71,8 +71,14 @@ pub(crate) struct Worker<S: Stage<N>, const N: usize> {
     ready: Vec<S::Output>,
     /// A full queue means a job is waiting anyway (a wake-up): the new one is dropped.
     coalesce: bool,
-    /// Jobs that found the queue full (and were dropped).
+    /// Jobs that found the queue full, oldest first, sent as the thread makes room (a job
+    /// that must not be lost, a keyframe for the loop closer: dropped, it would be missing
+    /// from the place recognition's database for good).
+    waiting: VecDeque<Numbered<S::Job>>,
+    /// Jobs that found the queue full and waited (not dropped), and the most that waited at
+    /// once.
     pub queue_full: usize,
+    pub max_waiting: usize,
     /// What became of the thread, if it died.
     pub deaths: Vec<String>,
 }
@@ -108,7 +114,9 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
             next: 0,
             ready: Vec::new(),
             coalesce,
+            waiting: VecDeque::new(),
             queue_full: 0,
+            max_waiting: 0,
             deaths: Vec::new(),
         }
     }
@@ -128,27 +136,49 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
         }
     }
 
-    /// Gives the worker `job`: queued for the thread, or run now.
+    /// Gives the worker `job`: queued for the thread, or run now. A job that finds the queue
+    /// full waits in the calling thread, without blocking it, and goes to the thread as the
+    /// thread makes room ([`Worker::poll`]), after those that waited before it (with
+    /// `coalesce`, it is dropped).
     pub fn submit(&mut self, job: S::Job) {
         let number = self.next;
         self.next += 1;
-        if let Runner::Thread { jobs, handle, .. } = &self.runner {
-            match jobs.try_send((number, job.clone())) {
+        if !self.threaded() {
+            self.run_inline(&job);
+            return;
+        }
+        let before = self.waiting.len();
+        self.waiting.push_back((number, job));
+        self.send_waiting();
+        if self.coalesce {
+            // A wake-up that found the queue full: the one queued sees what it would have.
+            self.waiting.clear();
+        } else if self.waiting.len() > before {
+            self.queue_full += 1;
+            self.max_waiting = self.max_waiting.max(self.waiting.len());
+        }
+    }
+
+    /// Sends the waiting jobs, oldest first, while the queue has room (a thread that has
+    /// ended: it falls back, and they run inline).
+    fn send_waiting(&mut self) {
+        while let Some((number, job)) = self.waiting.front() {
+            let Runner::Thread { jobs, handle, .. } = &self.runner else {
+                break;
+            };
+            match jobs.try_send((*number, job.clone())) {
                 Ok(()) => {
-                    self.pending.push_back((number, job));
-                    return;
+                    let sent = self.waiting.pop_front().expect("the front");
+                    self.pending.push_back(sent);
                 }
-                // A thread that has ended cannot empty its queue: it falls back below.
-                Err(TrySendError::Full(_)) if !handle.is_finished() => {
-                    if !self.coalesce {
-                        self.queue_full += 1;
-                    }
-                    return;
+                // A thread that has ended cannot empty its queue.
+                Err(TrySendError::Full(_)) if !handle.is_finished() => break,
+                Err(_) => {
+                    self.fall_back(false);
+                    break;
                 }
-                Err(_) => self.fall_back(false),
             }
         }
-        self.run_inline(&job);
     }
 
     fn run_inline(&mut self, job: &S::Job) {
@@ -177,6 +207,8 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
         }
         if disconnected {
             self.fall_back(false);
+        } else {
+            self.send_waiting();
         }
         std::mem::take(&mut self.ready)
     }
@@ -184,6 +216,27 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
     /// Ends the worker: a thread answers every job queued and ends (or died: its jobs then
     /// run inline). Returns the last outputs and the stage.
     pub fn finish(mut self) -> (Vec<S::Output>, S, Vec<String>) {
+        if let Runner::Thread { jobs, outputs, .. } = &self.runner {
+            // The jobs still waiting go to the thread first, as it makes room — its answers
+            // taken meanwhile, so that it never waits on a full channel of outputs (one that
+            // cannot be sent, to a thread that died, runs inline when it falls back).
+            while let Some((number, job)) = self.waiting.front() {
+                match jobs.try_send((*number, job.clone())) {
+                    Ok(()) => {
+                        let sent = self.waiting.pop_front().expect("the front");
+                        self.pending.push_back(sent);
+                    }
+                    Err(TrySendError::Full(_)) => match outputs.recv() {
+                        Ok((number, out)) => {
+                            answered(&mut self.pending, number);
+                            self.ready.extend(out);
+                        }
+                        Err(_) => break,
+                    },
+                    Err(TrySendError::Disconnected(_)) => break,
+                }
+            }
+        }
         if let Runner::Thread { jobs, outputs, .. } = &mut self.runner {
             // Dropping our sender ends the thread once the queue is empty (a clone held by
             // another worker's thread is gone once that worker has finished).
@@ -242,7 +295,9 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
             }
         };
         self.runner = Runner::Inline(Box::new(stage));
-        for (_, job) in std::mem::take(&mut self.pending) {
+        let unanswered = std::mem::take(&mut self.pending);
+        let waiting = std::mem::take(&mut self.waiting);
+        for (_, job) in unanswered.into_iter().chain(waiting) {
             self.run_inline(&job);
         }
     }
@@ -380,5 +435,64 @@ mod tests {
         assert_eq!(out, vec![1, 3, 6, 10, 15, 21, 28, 36, 45, 55]);
         assert_eq!(deaths.len(), 1, "{deaths:?}");
         assert!(deaths[0].contains("ended before the run did"), "{deaths:?}");
+    }
+
+    /// [`Sum`], taking a millisecond per job.
+    struct SlowSum(Sum);
+
+    impl Stage<3> for SlowSum {
+        type Job = u64;
+        type Output = u64;
+        fn run(&mut self, graph: &SharedGraph<3>, job: &u64, out: &mut Vec<u64>) {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+            self.0.run(graph, job, out);
+        }
+    }
+
+    /// Jobs given faster than the thread answers them wait for room, none is dropped, and the
+    /// answers come in order — also with more waiting than the channel of answers holds, and
+    /// when the thread dies while they wait.
+    #[test]
+    fn jobs_that_find_the_queue_full_wait_and_none_is_lost() {
+        for fault in [None, Some(Fault::Panic { after: 50 })] {
+            let mut w = Worker::new(
+                "slow sum",
+                Arc::new(SharedGraph::default()),
+                SlowSum(Sum(0)),
+                Box::new(|| SlowSum(Sum(0))),
+                true,
+                2,
+                false,
+                fault,
+            );
+            let mut out = Vec::new();
+            for j in 1..=200 {
+                w.submit(j);
+                out.extend(w.poll());
+            }
+            assert!(
+                w.queue_full > 100 && w.max_waiting > 66,
+                "{} {}",
+                w.queue_full,
+                w.max_waiting
+            );
+            let (last, stage, deaths) = w.finish();
+            out.extend(last);
+            assert_eq!(out.len(), 200, "{fault:?}");
+            match fault {
+                None => {
+                    assert_eq!(
+                        out,
+                        (1..=200u64).map(|n| n * (n + 1) / 2).collect::<Vec<_>>()
+                    );
+                    assert_eq!((stage.0.0, deaths.len()), ((1..=200).sum::<u64>(), 0));
+                }
+                Some(_) => {
+                    // The stage died with jobs 1–50; the new one answered jobs 51–200.
+                    assert_eq!(stage.0.0, (51..=200).sum::<u64>());
+                    assert_eq!(deaths.len(), 1, "{deaths:?}");
+                }
+            }
+        }
     }
 }

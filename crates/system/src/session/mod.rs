@@ -58,8 +58,9 @@ pub(crate) struct Session<S: Sensor<N>, const N: usize> {
     loop_timings: StageTimings,
     /// How long the tracking thread waited for the locks it shares.
     lock_waits: LockWaitLog,
-    /// Keyframes the loop closer's queue had no room for.
-    loop_queue_full: usize,
+    /// Keyframes that found the loop closer's queue full (they waited), and the most that
+    /// waited at once.
+    loop_queue_full: (usize, usize),
 }
 
 /// The tracking thread's lock waits over a run (`slam::map::shared::record_lock_waits`).
@@ -133,7 +134,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             warnings: Vec::new(),
             loop_timings: StageTimings::default(),
             lock_waits: LockWaitLog::default(),
-            loop_queue_full: 0,
+            loop_queue_full: (0, 0),
         }
     }
 
@@ -351,7 +352,11 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             refused: self.refused,
             optimisations: self.optimisations,
             warnings: self.warnings,
-            loop_queue_full: (self.loop_queue_full, self.config.loops.queue),
+            loop_queue_full: (
+                self.loop_queue_full.0,
+                self.config.loops.queue,
+                self.loop_queue_full.1,
+            ),
             lock_waits: self.lock_waits.summary(),
         };
         Ok(outputs::assemble(ended, finished, S::run_graph))
@@ -361,7 +366,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
     /// what they still give and what became of them.
     fn stop_backend(&mut self) {
         if let Some(loops) = self.backend.loops.take() {
-            self.loop_queue_full = loops.queue_full;
+            self.loop_queue_full = (loops.queue_full, loops.max_waiting);
             let (outputs, _, deaths) = loops.finish();
             self.warnings.extend(deaths);
             self.take_loop_outputs(outputs);

@@ -30,8 +30,8 @@ pub(super) struct Ended {
     pub refused: Vec<RefusedLoop>,
     pub optimisations: Vec<DwoStats>,
     pub warnings: Vec<String>,
-    /// Keyframes the loop closer's queue had no room for, and its length.
-    pub loop_queue_full: (usize, usize),
+    /// Keyframes that found the loop closer's queue full, its length, the most that waited.
+    pub loop_queue_full: (usize, usize, usize),
     pub lock_waits: LockWaits,
 }
 
@@ -69,9 +69,9 @@ pub(super) fn assemble<const N: usize>(
     warnings.extend(refused_loop_warnings(&refused));
     if loop_queue_full.0 > 0 {
         warnings.push(format!(
-            "{} keyframes found the loop closer's queue full and were not entered into place \
-             recognition (loops.queue: {})",
-            loop_queue_full.0, loop_queue_full.1
+            "{} keyframes found the loop closer's queue full (loops.queue: {}) and waited for \
+             room in the tracking thread, at most {} at once",
+            loop_queue_full.0, loop_queue_full.1, loop_queue_full.2
         ));
     }
     log.record.keyframes = keyframe_records(&graph, &from_world, &store);
