@@ -560,6 +560,11 @@ impl MonoExplorer {
         Ok(())
     }
 
+    /// The configuration.
+    pub fn config(&self) -> &ExplorationConfig {
+        &self.config
+    }
+
     /// Number of running feature filters.
     pub fn num_filters(&self) -> usize {
         self.filters.len()
