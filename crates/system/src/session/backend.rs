@@ -149,7 +149,7 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
         }
         let before = self.waiting.len();
         self.waiting.push_back((number, job));
-        self.send_waiting();
+        self.send_waiting(false);
         if self.coalesce {
             // A wake-up that found the queue full: the one queued sees what it would have.
             self.waiting.clear();
@@ -159,11 +159,18 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
         }
     }
 
-    /// Sends the waiting jobs, oldest first, while the queue has room (a thread that has
-    /// ended: it falls back, and they run inline).
-    fn send_waiting(&mut self) {
+    /// Sends the waiting jobs, oldest first, while the queue has room — or, with `wait`, all
+    /// of them, taking the thread's answers while the queue is full, so that it never waits
+    /// on a full channel of answers (a thread that has ended: it falls back, and they run
+    /// inline).
+    fn send_waiting(&mut self, wait: bool) {
         while let Some((number, job)) = self.waiting.front() {
-            let Runner::Thread { jobs, handle, .. } = &self.runner else {
+            let Runner::Thread {
+                jobs,
+                outputs,
+                handle,
+            } = &self.runner
+            else {
                 break;
             };
             match jobs.try_send((*number, job.clone())) {
@@ -171,6 +178,13 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
                     let sent = self.waiting.pop_front().expect("the front");
                     self.pending.push_back(sent);
                 }
+                Err(TrySendError::Full(_)) if wait => match outputs.recv() {
+                    Ok((number, out)) => {
+                        answered(&mut self.pending, number);
+                        self.ready.extend(out);
+                    }
+                    Err(_) => break,
+                },
                 // A thread that has ended cannot empty its queue.
                 Err(TrySendError::Full(_)) if !handle.is_finished() => break,
                 Err(_) => {
@@ -208,7 +222,7 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
         if disconnected {
             self.fall_back(false);
         } else {
-            self.send_waiting();
+            self.send_waiting(false);
         }
         std::mem::take(&mut self.ready)
     }
@@ -216,27 +230,8 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
     /// Ends the worker: a thread answers every job queued and ends (or died: its jobs then
     /// run inline). Returns the last outputs and the stage.
     pub fn finish(mut self) -> (Vec<S::Output>, S, Vec<String>) {
-        if let Runner::Thread { jobs, outputs, .. } = &self.runner {
-            // The jobs still waiting go to the thread first, as it makes room — its answers
-            // taken meanwhile, so that it never waits on a full channel of outputs (one that
-            // cannot be sent, to a thread that died, runs inline when it falls back).
-            while let Some((number, job)) = self.waiting.front() {
-                match jobs.try_send((*number, job.clone())) {
-                    Ok(()) => {
-                        let sent = self.waiting.pop_front().expect("the front");
-                        self.pending.push_back(sent);
-                    }
-                    Err(TrySendError::Full(_)) => match outputs.recv() {
-                        Ok((number, out)) => {
-                            answered(&mut self.pending, number);
-                            self.ready.extend(out);
-                        }
-                        Err(_) => break,
-                    },
-                    Err(TrySendError::Disconnected(_)) => break,
-                }
-            }
-        }
+        // The jobs still waiting go to the thread first.
+        self.send_waiting(true);
         if let Runner::Thread { jobs, outputs, .. } = &mut self.runner {
             // Dropping our sender ends the thread once the queue is empty (a clone held by
             // another worker's thread is gone once that worker has finished).
