@@ -130,6 +130,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         kitti: false,
         dense_ply: args.sensor == DemoSensor::Rgbd,
         quiet: args.quiet,
+        maps: Default::default(),
     };
     let outcome = execute(source, &settings)?;
     print_summary(&outcome, &args);

@@ -10,6 +10,7 @@ mod demo;
 mod eval;
 mod experiment;
 mod inspect;
+mod map;
 mod pgo;
 mod plot;
 mod render;
@@ -41,6 +42,9 @@ enum Command {
     /// The live SLAM system on a recorded stereo or RGB-D sequence: every frame's pose, the
     /// keyframes and the map, with a report (and ATE/RPE when the sequence has ground truth).
     Run(run::RunArgs),
+    /// Saved maps: what a map file holds.
+    #[command(subcommand)]
+    Map(map::MapCommand),
     /// Train the bag-of-words vocabulary of place recognition (DBoW2 YAML).
     Vocabulary(vocabulary::VocabularyArgs),
     /// Render an image sequence with exact ground truth (TUM, EuRoC or KITTI layout).
@@ -71,6 +75,7 @@ fn run(command: Command) -> Result<()> {
         Command::Ba(args) => ba::run(args),
         Command::Inspect(cmd) => inspect::run(cmd),
         Command::Run(args) => run::run(args),
+        Command::Map(cmd) => map::run(cmd),
         Command::Vocabulary(args) => vocabulary::run(args),
         Command::Render(args) => render::run(args),
         Command::Demo(args) => demo::run(args),

@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
+use system::map_file::MapFile;
 use system::vocabulary::{VocabularyOrigin, load_vocabulary};
 use system::{LiveRun, Mode, Options, RunGraph, RunResult, System, SystemConfig};
 
@@ -44,6 +45,10 @@ pub struct RunArgs {
     /// Process at most this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
+    /// Start at this frame of the sequence (0: the first; with --depth-frames-only, of the
+    /// frames with depth); the run numbers its frames from there.
+    #[arg(long, default_value_t = 0)]
+    pub start_frame: usize,
     /// Force the sequence's format instead of detecting it.
     #[arg(long, value_parser = ["tum", "euroc", "kitti", "folder"])]
     pub format: Option<String>,
@@ -65,6 +70,21 @@ pub struct RunArgs {
     /// `dense.ply` (thesis §6.5.3; `dense` in --config sets the voxel size).
     #[arg(long)]
     pub dense_ply: bool,
+    /// Save the map at the end of the run (the whole state needed to go on in it: keyframes,
+    /// points, edges, features, the camera, the vocabulary's identity; written atomically).
+    /// `dwslam map info FILE` says what a map holds.
+    #[arg(long, value_name = "FILE")]
+    pub save_map: Option<PathBuf>,
+    /// Go on in a map saved by an earlier run (stereo and RGB-D): the frames are found in it
+    /// by relocalisation and tracked in it; without --localise the map is extended (a camera
+    /// not found in it for `tracker.new_map_after` seconds starts a new map, merged when it
+    /// sees the old one).
+    #[arg(long, value_name = "FILE")]
+    pub load_map: Option<PathBuf>,
+    /// Only localise in the map of --load-map: every frame relocalised and tracked against it,
+    /// nothing added (a frame the map does not cover is lost, with its reason).
+    #[arg(long, requires = "load_map")]
+    pub localise: bool,
     /// No progress bar (for logs).
     #[arg(long)]
     pub quiet: bool,
@@ -86,12 +106,32 @@ pub const FINAL_TRAJECTORY_FILE: &str = "trajectory_final.tum";
 pub fn run(args: RunArgs) -> Result<()> {
     // Everything the command line says is checked before any work.
     args::input_dir(&args.path, "PATH")?;
-    let config = match &args.config {
+    let (config, config_text) = match &args.config {
         Some(path) => {
             args::input_file(path, "--config")?;
-            SystemConfig::from_file(path)?
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("--config {}", path.display()))?;
+            (SystemConfig::from_file(path)?, text)
         }
-        None => SystemConfig::default(),
+        None => (SystemConfig::default(), String::new()),
+    };
+    if let Some(path) = &args.save_map {
+        args::output_file(path, "--save-map")?;
+    }
+    let load_map = match &args.load_map {
+        Some(path) => {
+            args::input_file(path, "--load-map")?;
+            let t = Instant::now();
+            let map = MapFile::read(path)?;
+            println!(
+                "loaded map {} in {:.2} s: {}",
+                path.display(),
+                t.elapsed().as_secs_f64(),
+                map_line(&map.summary())
+            );
+            Some(Arc::new(map))
+        }
+        None => None,
     };
     if let Some(camera) = &args.camera {
         args::input_file(camera, "--camera")?;
@@ -116,7 +156,9 @@ pub fn run(args: RunArgs) -> Result<()> {
         no_depth: args.sensor.as_deref() == Some("mono"),
         ..OpenOptions::default()
     };
-    let sequence = Sequence::open(&args.path, &options)?;
+    let sequence = Sequence::open(&args.path, &options)?
+        .starting_at(args.start_frame)
+        .map_err(|e| anyhow::anyhow!("--start-frame {}: {e}", args.start_frame))?;
     let info = sequence.info().clone();
     let sensor = match (args.sensor.as_deref(), &info.camera) {
         (None | Some("stereo"), SensorModel::Stereo(_))
@@ -176,6 +218,12 @@ pub fn run(args: RunArgs) -> Result<()> {
         kitti: args.kitti,
         dense_ply: args.dense_ply,
         quiet: args.quiet,
+        maps: MapOptions {
+            save: args.save_map.clone(),
+            load: load_map,
+            localise: args.localise,
+            config_text,
+        },
     };
     execute(source, &settings).map(|_| ())
 }
@@ -212,6 +260,29 @@ pub struct Settings {
     pub dense_ply: bool,
     /// No progress bar.
     pub quiet: bool,
+    /// Maps saved and loaded.
+    pub maps: MapOptions,
+}
+
+/// The maps of a run: saved at its end, loaded at its start (`--save-map`, `--load-map`).
+#[derive(Default)]
+pub struct MapOptions {
+    /// Save the map here at the end.
+    pub save: Option<PathBuf>,
+    /// Go on in this map.
+    pub load: Option<Arc<MapFile>>,
+    /// Only localise in it.
+    pub localise: bool,
+    /// The configuration overrides (YAML), kept in a saved map.
+    pub config_text: String,
+}
+
+/// One line of what a map holds.
+pub fn map_line(s: &system::map_file::MapSummary) -> String {
+    format!(
+        "{} keyframes, {} points, {} maps, {} edges ({} marginalised), {} keypoints",
+        s.keyframes, s.points, s.maps, s.edges, s.marginalised_edges, s.keypoints
+    )
 }
 
 /// What a run measured (the demo prints it).
@@ -290,6 +361,10 @@ pub fn execute(source: Source, settings: &Settings) -> Result<Outcome> {
             vocabulary,
             // The keyframes' depth images only serve the dense model.
             keyframe_depth: settings.dense_ply,
+            save_map: settings.maps.save.clone(),
+            load_map: settings.maps.load.clone(),
+            localise: settings.maps.localise,
+            config_text: settings.maps.config_text.clone(),
             faults,
         },
     )?;
@@ -449,6 +524,17 @@ fn drive<S: LiveRun>(
     extra(&result)?;
     report(&settings.out, &result, ground_truth, alignment)?;
     println!("wrote {}", settings.out.display());
+    match &result.saved_map {
+        Some(Ok(m)) => println!(
+            "saved map {} ({:.1} MB in {:.2} s): {}",
+            m.path.display(),
+            m.bytes as f64 / 1e6,
+            m.seconds,
+            map_line(&m.summary)
+        ),
+        Some(Err(e)) => bail!("the run's outputs are written, but its map is not: {e}"),
+        None => {}
+    }
     let outcome = Outcome {
         frames: result.record.frames.len(),
         seconds,
@@ -602,6 +688,26 @@ fn summary_extra(
         }
     }
     extra.insert("keyframe_reasons".into(), json!(reasons));
+    extra.insert(
+        "keyframes_made".into(),
+        json!(
+            result
+                .frames
+                .iter()
+                .filter(|f| f.keyframe.is_some())
+                .count()
+        ),
+    );
+    if let Some(saved) = &result.saved_map {
+        extra.insert(
+            "saved_map".into(),
+            match saved {
+                Ok(m) => json!({"path": m.path, "bytes": m.bytes, "seconds": m.seconds,
+                    "holds": m.summary}),
+                Err(e) => json!({"error": e}),
+            },
+        );
+    }
     extra.insert("warnings".into(), json!(result.warnings));
     extra.insert(
         "loops".into(),

@@ -17,7 +17,9 @@ use crate::config::SystemConfig;
 use crate::frame::{FrameData, SensorFrontEnd, pixel_depth};
 use crate::keyframes::{KeyframeReason, keyframe_reason, nearest_keyframe};
 use crate::loops::{LoopCloser, LoopJob};
-use crate::place_recognition::{PlaceRecognition, PlaceRecognitionConfig, features};
+use crate::place_recognition::{
+    KeyframeFeatures, PlaceRecognition, PlaceRecognitionConfig, features,
+};
 use crate::result::{Relocalisation, RunGraph, SystemError};
 use crate::session::{Context, Finished, Found, Sensor, Step, StepState};
 use crate::tracker::{Tracked, Tracker};
@@ -50,6 +52,8 @@ pub(crate) struct DepthSensor {
     /// The tracker's guess for the last frame it lost (where a new map would start).
     guess: Option<Sim3>,
     next_track: TrackId,
+    /// Only localise in a loaded map: no keyframe, no new map, no final optimisation.
+    localise: bool,
 }
 
 impl DepthSensor {
@@ -66,6 +70,7 @@ impl DepthSensor {
             relocaliser: None,
             guess: None,
             next_track: 0,
+            localise: false,
             front,
         }
     }
@@ -152,7 +157,9 @@ impl DepthSensor {
                 &camera_from_world,
                 median_depth,
             );
-            let reason = nearest.as_ref().and_then(|n| {
+            // Localising in a loaded map: the nearest keyframe becomes the reference, none is
+            // made.
+            let reason = nearest.as_ref().filter(|_| !self.localise).and_then(|n| {
                 keyframe_reason(&ctx.config.keyframes, n, stats.found, stats.searched)
             });
             (reason, nearest)
@@ -441,10 +448,14 @@ impl Sensor<3> for DepthSensor {
             self.tracker.track(ctx.graph, &store, frame)
         };
         let Some(tracked) = tracked else {
-            return Ok(Step::untracked(
-                StepState::Lost("no reference keyframe to track against".into()),
-                t.elapsed(),
-            ));
+            // No pose yet in a map loaded from a file (the session relocalises the frame), or
+            // no reference keyframe.
+            let why = if !self.tracker.has_pose() {
+                "not found in the loaded map yet"
+            } else {
+                "no reference keyframe to track against"
+            };
+            return Ok(Step::untracked(StepState::Lost(why.into()), t.elapsed()));
         };
         for (stage, d) in &tracked.timings {
             ctx.timings.record(stage, *d);
@@ -491,8 +502,15 @@ impl Sensor<3> for DepthSensor {
         frame: &Arc<FrameData>,
         lost_for: f64,
     ) -> Result<Option<Step>, SystemError> {
-        let Some(guess) = self.guess else {
+        if self.localise {
             return Ok(None);
+        }
+        // A camera never found in a loaded map starts its map at the identity: it is a map of
+        // its own until a loop merges it.
+        let guess = match (self.guess, ctx.graph.read().num_keyframes()) {
+            (Some(guess), _) => guess,
+            (None, n) if n > 0 && !self.tracker.has_pose() => Sim3::identity(),
+            (None, _) => return Ok(None),
         };
         if frame.depth.is_none() {
             return Ok(None);
@@ -556,6 +574,7 @@ impl Sensor<3> for DepthSensor {
         }
         let final_iterations = ctx.config.optimiser.final_iterations;
         if !interrupted
+            && !self.localise
             && final_iterations > 0
             && ctx.graph.read().num_keyframes() >= 2
             && ctx.graph.read().reference().is_some()
@@ -583,5 +602,37 @@ impl Sensor<3> for DepthSensor {
 
     fn run_graph(graph: SlamGraph<3>) -> RunGraph {
         RunGraph::Depth(graph)
+    }
+
+    fn place_features(&self) -> Vec<(KeyframeId, KeyframeFeatures)> {
+        self.relocaliser
+            .as_ref()
+            .map_or_else(Vec::new, |(database, _)| {
+                read_lock(database)
+                    .entries()
+                    .map(|(k, f)| (k, f.clone()))
+                    .collect()
+            })
+    }
+
+    fn restore(
+        &mut self,
+        _: &mut Ctx,
+        features: Vec<(KeyframeId, KeyframeFeatures)>,
+        localise: bool,
+    ) -> Result<(), SystemError> {
+        self.localise = localise;
+        let Some((database, _)) = &self.relocaliser else {
+            return Err(SystemError::Unsupported(
+                "a loaded map is found by its keyframes' words: this run has no vocabulary \
+                 (loops.enabled: false)"
+                    .into(),
+            ));
+        };
+        let mut database = write_lock(database);
+        for (k, f) in features {
+            database.insert(k, f)?;
+        }
+        Ok(())
     }
 }

@@ -14,6 +14,7 @@
 
 pub mod config;
 pub mod dense_model;
+pub mod map_file;
 mod result;
 mod system;
 
@@ -38,7 +39,7 @@ pub use place_recognition::vocabulary;
 pub use place_recognition::{Alignment, OrbConfig, PlaceRecognitionConfig};
 pub use result::{
     FrameReport, KeyframeNode, LiveRun, LockWaits, LoopEvent, LoopEvidence, Mode, NewMap, Progress,
-    RefusedLoop, Relocalisation, RunGraph, RunResult, SystemError,
+    RefusedLoop, Relocalisation, RunGraph, RunResult, SavedMap, SystemError,
 };
 pub use session::backend::Fault;
 pub use session::sensor::Faults;

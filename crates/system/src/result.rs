@@ -47,6 +47,25 @@ pub enum SystemError {
     /// Place recognition could not be set up.
     #[error(transparent)]
     PlaceRecognition(#[from] crate::place_recognition::PlaceRecognitionError),
+    /// A loaded map cannot be used by this run.
+    #[error(transparent)]
+    Map(#[from] crate::map_file::MapFileError),
+    /// What this build cannot do yet.
+    #[error("{0}")]
+    Unsupported(String),
+}
+
+/// The map a run saved (`Options::save_map`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SavedMap {
+    /// The file.
+    pub path: std::path::PathBuf,
+    /// Its size.
+    pub bytes: u64,
+    /// Time to assemble and write it.
+    pub seconds: f64,
+    /// What it holds.
+    pub summary: crate::map_file::MapSummary,
 }
 
 /// What an appearance loop of the stereo and RGB-D system rests on: a person reading the run
@@ -277,6 +296,9 @@ pub struct RunResult {
     pub alternatives: Vec<(&'static str, Trajectory)>,
     /// How long the tracking thread waited for locks.
     pub lock_waits: LockWaits,
+    /// The map saved at the end (`Options::save_map`), or why it could not be: the run's
+    /// outputs are written either way.
+    pub saved_map: Option<Result<SavedMap, String>>,
 }
 
 /// What the progress bar shows of the map while a run goes on.

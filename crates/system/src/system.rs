@@ -4,14 +4,18 @@ use crate::config::SystemConfig;
 use crate::depth::DepthSensor;
 use crate::frame::SensorFrontEnd;
 use crate::keyframes::KeyframeStore;
+use crate::map_file::{MapAbout, MapCamera, MapFile, VocabularyId};
 use crate::mono::MonoSensor;
+use crate::result::RunGraph;
 use crate::result::{FrameReport, LiveRun, Mode, Progress, RunResult, SystemError};
 use crate::session::backend::Worker;
 use crate::session::sensor::Faults;
 use crate::session::{Backend, Optimise, Session};
 use data::camera::SensorModel;
 use data::output::RunRecord;
+use slam::map::shared::write_lock;
 use slam::map::{SharedGraph, SlamGraph};
+use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 use vision::bow::Vocabulary;
@@ -31,6 +35,15 @@ pub struct Options {
     /// it is half of what a keyframe's images take (a 640×480 RGB-D keyframe: 1.2 of 2.4 MB),
     /// which a long exploration holds for every keyframe.
     pub keyframe_depth: bool,
+    /// Save the map at the end of the run to this file (`crate::map_file`; atomically).
+    pub save_map: Option<PathBuf>,
+    /// Go on in this map (`MapFile::read`): the frames are found in it by relocalisation,
+    /// then tracked in it; checked against the camera and the vocabulary.
+    pub load_map: Option<Arc<MapFile>>,
+    /// With `load_map`: only localise in the map, add nothing to it.
+    pub localise: bool,
+    /// The configuration overrides the run was given (YAML), kept in a saved map.
+    pub config_text: String,
     /// Faults for the back-end's threads (tests).
     #[doc(hidden)]
     pub faults: Faults,
@@ -43,6 +56,10 @@ impl Default for Options {
             sequence: String::new(),
             vocabulary: None,
             keyframe_depth: true,
+            save_map: None,
+            load_map: None,
+            localise: false,
+            config_text: String::new(),
             faults: Faults::default(),
         }
     }
@@ -68,6 +85,29 @@ impl System {
         options: Options,
     ) -> Result<Self, SystemError> {
         config.validate()?;
+        if options.localise && options.load_map.is_none() {
+            return Err(SystemError::Unsupported(
+                "localisation only needs a map to localise in (load one)".into(),
+            ));
+        }
+        if let Some(map) = &options.load_map {
+            map.check(&map.path, sensor, options.vocabulary.as_deref())?;
+        }
+        let save = options.save_map.clone().map(|path| {
+            let mut sequences = options
+                .load_map
+                .as_ref()
+                .map_or_else(Vec::new, |m| m.about.sequences.clone());
+            sequences.push(options.sequence.clone());
+            let about = MapAbout {
+                dwslam: env!("CARGO_PKG_VERSION").to_string(),
+                camera: MapCamera::of(sensor),
+                vocabulary: options.vocabulary.as_deref().map(VocabularyId::of),
+                config: options.config_text.clone(),
+                sequences,
+            };
+            (path, about)
+        });
         let record = RunRecord {
             sequence: options.sequence.clone(),
             sensor: match sensor {
@@ -94,10 +134,26 @@ impl System {
                     optimiser: None,
                     loops,
                 };
-                Inner::Mono(Session::new(config, graph, store, mono, backend, record))
+                let mut session =
+                    Session::new(config, graph, store, mono, backend, record).saving(save);
+                if let Some(map) = &options.load_map {
+                    session.restore(map.features.clone(), options.localise)?;
+                }
+                Inner::Mono(session)
             }
             SensorModel::Stereo(_) | SensorModel::Rgbd(_) => {
-                let graph = Arc::new(SharedGraph::new(SlamGraph::new()));
+                let graph = match options.load_map.as_deref() {
+                    Some(MapFile {
+                        graph: RunGraph::Depth(g),
+                        keyframes,
+                        ..
+                    }) => {
+                        *write_lock(&store) = keyframes.clone();
+                        g.clone()
+                    }
+                    _ => SlamGraph::new(),
+                };
+                let graph = Arc::new(SharedGraph::new(graph));
                 let front = SensorFrontEnd::new(sensor, &config)?;
                 let camera = *front.camera();
                 let mut depth = DepthSensor::new(front, &config, options.keyframe_depth);
@@ -132,7 +188,12 @@ impl System {
                     optimiser: Some(optimiser),
                     loops,
                 };
-                Inner::Depth(Session::new(config, graph, store, depth, backend, record))
+                let mut session =
+                    Session::new(config, graph, store, depth, backend, record).saving(save);
+                if let Some(map) = &options.load_map {
+                    session.restore(map.features.clone(), options.localise)?;
+                }
+                Inner::Depth(session)
             }
         }))
     }

@@ -250,6 +250,11 @@ impl Tracker {
         self.motion.clone()
     }
 
+    /// Whether the tracker has had a pose (a run on a loaded map starts without one).
+    pub fn has_pose(&self) -> bool {
+        self.motion.last.is_some()
+    }
+
     /// Puts back a [`Tracker::motion`].
     pub fn set_motion(&mut self, motion: Motion) {
         self.motion = motion;

@@ -180,6 +180,31 @@ impl Vocabulary {
         }
     }
 
+    /// A 64-bit fingerprint of the whole tree (branching, depth, every node's parent,
+    /// children, centre, weight and word): the vocabulary's identity, which a map file records
+    /// (its keyframes' words and scores mean nothing under another vocabulary). FNV-1a over
+    /// 64-bit words: one pass, ~10 ms for a 10⁶-node tree.
+    pub fn fingerprint(&self) -> u64 {
+        const PRIME: u64 = 0x0000_0100_0000_01b3;
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut mix = |x: u64| h = (h ^ x).wrapping_mul(PRIME);
+        mix(self.k as u64);
+        mix(self.levels as u64);
+        mix(self.nodes.len() as u64);
+        for n in &self.nodes {
+            mix(n.parent as u64);
+            mix(n.children.len() as u64);
+            for &c in &n.children {
+                mix(c as u64);
+            }
+            n.descriptor.iter().for_each(|&d| mix(d));
+            mix(n.weight.to_bits());
+            mix(n.word.map_or(u64::MAX, |w| w as u64));
+        }
+        mix(self.words.len() as u64);
+        h
+    }
+
     /// Descends the tree to the word of a descriptor (nearest child by Hamming distance at each
     /// level). Returns `(word id, node index)`.
     pub fn word_of(&self, d: &Descriptor) -> (usize, usize) {

@@ -211,6 +211,20 @@ impl Sequence {
         &self.info
     }
 
+    /// The sequence from frame `first` on (frames are numbered from there, 0 first); an
+    /// error if it has no frame `first`.
+    pub fn starting_at(mut self, first: usize) -> Result<Self, String> {
+        if first >= self.frames.len() {
+            return Err(format!(
+                "it has {} frames, so no frame {first} to start at",
+                self.frames.len()
+            ));
+        }
+        self.frames.drain(..first);
+        self.info.frame_count = self.frames.len();
+        Ok(self)
+    }
+
     /// Number of frames.
     pub fn len(&self) -> usize {
         self.frames.len()

@@ -14,7 +14,8 @@ pub mod maps;
 pub mod shared;
 
 pub use graph::{
-    BfsTree, Edge, FIRST_MAP, GraphError, Keyframe, MapMerge, MapPoint, SlamGraph, Version,
+    BfsTree, Edge, FIRST_MAP, GraphError, GraphParts, Keyframe, KeyframePart, MapMerge, MapPoint,
+    PointPart, SlamGraph, Version,
 };
 pub use ids::{IdInt, KeyframeId, PointId};
 pub use maps::MapJoin;

@@ -20,7 +20,9 @@ use crate::config::LoopCorrection;
 use crate::config::{LoopAgreement, SystemConfig};
 use crate::frame::CornerIndex;
 use crate::keyframes::KeyframeStore;
-use crate::place_recognition::{Alignment, PlaceRecognition, PlaceRecognitionConfig};
+use crate::place_recognition::{
+    Alignment, KeyframeFeatures, PlaceRecognition, PlaceRecognitionConfig,
+};
 use crate::result::{LoopEvent, LoopEvidence, RefusedLoop};
 use crate::search::{
     CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX, SearchPoint, SearchScratch, predict, search,
@@ -187,6 +189,11 @@ impl MonoPlaces {
     /// Map `map`'s database, if it has keyframes.
     pub fn of(&self, map: usize) -> Option<&PlaceRecognition> {
         self.maps.get(&map)
+    }
+
+    /// Every map's keyframes' features.
+    pub fn entries(&self) -> impl Iterator<Item = (KeyframeId, &KeyframeFeatures)> {
+        self.maps.values().flat_map(|p| p.entries())
     }
 
     /// Map `map`'s database, made if new.

@@ -37,6 +37,7 @@ pub(crate) mod tracks;
 use crate::config::SystemConfig;
 use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
+use crate::place_recognition::KeyframeFeatures;
 use crate::place_recognition::features::extract as extract_features;
 use crate::result::{Relocalisation, RunGraph, SystemError};
 use crate::search::{
@@ -966,5 +967,29 @@ impl Sensor<2> for MonoSensor {
 
     fn run_graph(graph: SlamGraph<2>) -> RunGraph {
         RunGraph::Mono(graph)
+    }
+
+    fn place_features(&self) -> Vec<(KeyframeId, KeyframeFeatures)> {
+        self.places.as_ref().map_or_else(Vec::new, |places| {
+            let mut all: Vec<_> = read_lock(places)
+                .entries()
+                .map(|(k, f)| (k, f.clone()))
+                .collect();
+            all.sort_by_key(|(k, _)| *k);
+            all
+        })
+    }
+
+    /// Not yet: a monocular map is saved whole, but the monocular front-end cannot go on
+    /// in one (its tracks, feature filters and exploration start from a bootstrap).
+    fn restore(
+        &mut self,
+        _: &mut Ctx,
+        _: Vec<(KeyframeId, KeyframeFeatures)>,
+        _: bool,
+    ) -> Result<(), SystemError> {
+        Err(SystemError::Unsupported(
+            "loading a monocular map is not supported yet (stereo and RGB-D maps are)".into(),
+        ))
     }
 }

@@ -109,6 +109,11 @@ impl PlaceRecognition {
         self.keyframes.get(&id).map(|e| &e.features)
     }
 
+    /// Every keyframe's features, in id order (a map file stores them).
+    pub fn entries(&self) -> impl Iterator<Item = (KeyframeId, &KeyframeFeatures)> {
+        self.keyframes.iter().map(|(&k, e)| (k, &e.features))
+    }
+
     /// Extracts a keyframe's features (ORB, and the back-projected point of every keypoint
     /// where `depth(u, v)` gives metres; see [`features::extract`]) and adds it to the
     /// database. Returns the number of keypoints with a 3D point. (The live system extracts

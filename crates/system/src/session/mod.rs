@@ -27,8 +27,9 @@ pub(crate) use sensor::{
 
 use crate::config::SystemConfig;
 use crate::keyframes::KeyframeStore;
+use crate::map_file::MapAbout;
 use crate::result::{
-    FrameReport, LoopEvent, Progress, RefusedLoop, Relocalisation, RunResult, SystemError,
+    FrameReport, LoopEvent, Progress, RefusedLoop, Relocalisation, RunResult, SavedMap, SystemError,
 };
 use data::output::{RunRecord, StageTimings};
 use slam::dwo::DwoStats;
@@ -61,6 +62,32 @@ pub(crate) struct Session<S: Sensor<N>, const N: usize> {
     /// Keyframes that found the loop closer's queue full (they waited), and the most that
     /// waited at once.
     loop_queue_full: (usize, usize),
+    /// Where the map is saved at the end, and what it says about itself.
+    save: Option<(std::path::PathBuf, MapAbout)>,
+}
+
+/// Writes the map of a run's `result` (its whole final graph, its keyframes' images and
+/// `features`) to `path`; a failure is the result's, the run's outputs are written anyway.
+fn save_map(
+    path: &std::path::Path,
+    about: &MapAbout,
+    result: &RunResult,
+    features: &[(
+        slam::map::KeyframeId,
+        crate::place_recognition::KeyframeFeatures,
+    )],
+) -> Result<SavedMap, String> {
+    let t = Instant::now();
+    let bytes = crate::map_file::encode(about, &result.graph, &result.keyframes, features);
+    let size = crate::map_file::write_bytes(path, &bytes).map_err(|e| e.to_string())?;
+    let seconds = t.elapsed().as_secs_f64();
+    let map = crate::map_file::MapFile::from_bytes(&bytes, path).map_err(|e| e.to_string())?;
+    Ok(SavedMap {
+        path: path.to_path_buf(),
+        bytes: size,
+        seconds,
+        summary: map.summary(),
+    })
 }
 
 /// The tracking thread's lock waits over a run (`slam::map::shared::record_lock_waits`).
@@ -135,7 +162,28 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             loop_timings: StageTimings::default(),
             lock_waits: LockWaitLog::default(),
             loop_queue_full: (0, 0),
+            save: None,
         }
+    }
+
+    /// Saves the map to `path` at the end of the run ([`crate::map_file`]).
+    pub fn saving(mut self, save: Option<(std::path::PathBuf, MapAbout)>) -> Self {
+        self.save = save;
+        self
+    }
+
+    /// Goes on in a loaded map (the session's graph and store hold it): its keyframes'
+    /// `features` into the sensor's database; with `localise`, only localises in it.
+    pub fn restore(
+        &mut self,
+        features: Vec<(
+            slam::map::KeyframeId,
+            crate::place_recognition::KeyframeFeatures,
+        )>,
+        localise: bool,
+    ) -> Result<(), SystemError> {
+        let (sensor, mut ctx) = self.split();
+        sensor.restore(&mut ctx, features, localise)
     }
 
     /// The sensor, and what it reads and writes of the session.
@@ -341,6 +389,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
         self.stop_backend();
         let (sensor, mut ctx) = self.split();
         let finished = sensor.finish(&mut ctx, interrupted)?;
+        let save = self.save.take().map(|s| (s, self.sensor.place_features()));
         self.log.record.interrupted = interrupted;
         self.log.record.timings.extend(&self.loop_timings);
         let ended = outputs::Ended {
@@ -359,7 +408,11 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             ),
             lock_waits: self.lock_waits.summary(),
         };
-        Ok(outputs::assemble(ended, finished, S::run_graph))
+        let mut result = outputs::assemble(ended, finished, S::run_graph);
+        if let Some(((path, about), features)) = save {
+            result.saved_map = Some(save_map(&path, &about, &result, &features));
+        }
+        Ok(result)
     }
 
     /// Stops the workers (the loop closer first: it may still wake the optimiser), collecting

@@ -97,6 +97,7 @@ pub(super) fn assemble<const N: usize>(
         warnings,
         alternatives,
         lock_waits,
+        saved_map: None,
     }
 }
 

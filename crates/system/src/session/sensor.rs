@@ -7,6 +7,7 @@
 use super::backend::{Fault, Stage, Worker};
 use crate::config::SystemConfig;
 use crate::keyframes::{KeyframeReason, KeyframeStore};
+use crate::place_recognition::KeyframeFeatures;
 use crate::result::{LoopEvent, RefusedLoop, Relocalisation, RunGraph, SystemError};
 use crate::tracker::TrackerStats;
 use data::output::{StageTimings, TrackingState};
@@ -313,4 +314,18 @@ pub(crate) trait Sensor<const N: usize>: Sized {
 
     /// The graph as the run's result holds it.
     fn run_graph(graph: SlamGraph<N>) -> RunGraph;
+
+    /// The keyframes' place-recognition features (what a map file stores of the databases),
+    /// in id order.
+    fn place_features(&self) -> Vec<(KeyframeId, KeyframeFeatures)>;
+
+    /// Goes on in a map loaded from a file (the session's graph and keyframe store hold it
+    /// already): its keyframes' `features` into the database; with `localise`, the frames are
+    /// only localised in it, nothing is added.
+    fn restore(
+        &mut self,
+        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        features: Vec<(KeyframeId, KeyframeFeatures)>,
+        localise: bool,
+    ) -> Result<(), SystemError>;
 }

@@ -44,6 +44,9 @@ use super::ids::{KeyframeId, PointId};
 use super::maps::{self, MapJoin};
 use crate::factors::{MIN_INVERSE_DEPTH, inverse_depth_to_point, point_to_inverse_depth};
 
+mod parts;
+pub use parts::{GraphParts, KeyframePart, PointPart};
+
 /// A count of the mutations of a graph (see the module docs on versions).
 pub type Version = u64;
 
