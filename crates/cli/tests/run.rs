@@ -65,6 +65,36 @@ fn bad_arguments_fail_first() {
             vec!["run", kitchen, "--out", out, "--sensor", "stereo"],
             "--sensor stereo",
         ),
+        (
+            vec!["run", kitchen, "--out", out, "--localise"],
+            "--load-map",
+        ),
+        (
+            vec![
+                "run",
+                kitchen,
+                "--out",
+                out,
+                "--load-map",
+                missing.to_str().unwrap(),
+            ],
+            "nope",
+        ),
+        (
+            vec![
+                "run",
+                kitchen,
+                "--out",
+                out,
+                "--load-map",
+                config.to_str().unwrap(),
+            ],
+            "is not a dwslam map",
+        ),
+        (
+            vec!["run", kitchen, "--out", out, "--start-frame", "5000"],
+            "--start-frame 5000",
+        ),
     ] {
         let o = dwslam(&args);
         let stderr = String::from_utf8_lossy(&o.stderr);
@@ -332,5 +362,102 @@ fn a_run_whose_loop_closer_panics_completes_with_a_warning() {
         .unwrap();
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("DWSLAM_TEST_FAULT"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A map saved by one run is what `dwslam map info` describes and what the next run loads:
+/// with `--localise` its frames are found in it and nothing is added; a monocular run cannot
+/// go on in an RGB-D map, and says so.
+#[test]
+fn a_saved_map_is_described_and_loaded_by_the_next_run() {
+    let Some(kitchen) = data::paths::require("seven_scenes_redkitchen_1000") else {
+        return;
+    };
+    let kitchen = kitchen.to_str().unwrap();
+    let dir = scratch("maps");
+    let map = dir.join("maps").join("kitchen.map");
+    let map_arg = map.to_str().unwrap();
+    let first = dir.join("first");
+    let o = dwslam(&[
+        "run",
+        kitchen,
+        "--depth-frames-only",
+        "--max-frames",
+        "60",
+        "--deterministic",
+        "--quiet",
+        "--out",
+        first.to_str().unwrap(),
+        "--save-map",
+        map_arg,
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("saved map"), "{stdout}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(first.join("summary.json")).unwrap())
+            .unwrap();
+    let keyframes = summary["saved_map"]["holds"]["keyframes"].as_u64().unwrap();
+    assert!(keyframes >= 3, "{summary}");
+    assert_eq!(
+        summary["saved_map"]["bytes"].as_u64().unwrap(),
+        std::fs::metadata(&map).unwrap().len()
+    );
+    // What the map holds, as text and as JSON.
+    let o = dwslam(&["map", "info", map_arg]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success());
+    assert!(
+        text.contains(&format!("{keyframes} keyframes")) && text.contains("Rgbd"),
+        "{text}"
+    );
+    let o = dwslam(&["map", "info", map_arg, "--json"]);
+    let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(info["holds"]["keyframes"].as_u64(), Some(keyframes));
+    // The next frames localised in it: nothing added.
+    let second = dir.join("second");
+    let o = dwslam(&[
+        "run",
+        kitchen,
+        "--depth-frames-only",
+        "--start-frame",
+        "40",
+        "--max-frames",
+        "20",
+        "--deterministic",
+        "--quiet",
+        "--out",
+        second.to_str().unwrap(),
+        "--load-map",
+        map_arg,
+        "--localise",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(second.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["keyframes_made"].as_u64(), Some(0), "{summary}");
+    assert!(!summary["relocalisations"].as_array().unwrap().is_empty());
+    assert_eq!(summary["keyframes"].as_u64(), Some(keyframes));
+    // A monocular run and an RGB-D map.
+    let o = dwslam(&[
+        "run",
+        kitchen,
+        "--sensor",
+        "mono",
+        "--max-frames",
+        "5",
+        "--quiet",
+        "--out",
+        dir.join("third").to_str().unwrap(),
+        "--load-map",
+        map_arg,
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("the sensor rgbd") && stderr.contains("kitchen.map"),
+        "{stderr}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
