@@ -66,6 +66,16 @@ fn info(args: &InfoArgs) -> Result<()> {
         "               {} observations, {} image pixels kept",
         summary.observations, summary.pixels
     );
+    if let Some(b) = summary.bytes {
+        let mb = |n: usize| n as f64 / 1e6;
+        println!(
+            "  bytes        graph {:.2} MB, features {:.2} MB, images {:.2} MB ({:.2}× the features in all)",
+            mb(b.graph),
+            mb(b.features),
+            mb(b.images),
+            b.total as f64 / b.features.max(1) as f64
+        );
+    }
     if !about.config.trim().is_empty() {
         println!("  configuration overrides:");
         for line in about.config.lines() {

@@ -252,6 +252,8 @@ pub struct MapFile {
     pub keyframes: KeyframeStore,
     /// The keyframes' place-recognition features.
     pub(crate) features: Vec<(KeyframeId, KeyframeFeatures)>,
+    /// The file's bytes by part, if read from one.
+    bytes: Option<MapBytes>,
 }
 
 impl std::fmt::Debug for MapFile {
@@ -283,6 +285,21 @@ pub struct MapSummary {
     pub keypoints: usize,
     /// Image pixels kept.
     pub pixels: usize,
+    /// The file's bytes by part (a map read from a file).
+    pub bytes: Option<MapBytes>,
+}
+
+/// A map file's bytes by part.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct MapBytes {
+    /// The whole file.
+    pub total: usize,
+    /// The graph: keyframes' poses, measurements and edges, points.
+    pub graph: usize,
+    /// The keyframes' place-recognition features (keypoints, descriptors, their 3D points).
+    pub features: usize,
+    /// The keyframes' images where the guided search reads them (compressed).
+    pub images: usize,
 }
 
 impl MapFile {
@@ -324,6 +341,7 @@ impl MapFile {
                 .iter()
                 .map(|(_, k)| k.gray.data().iter().filter(|&&p| p != 0).count())
                 .sum(),
+            bytes: self.bytes,
         }
     }
 
@@ -436,8 +454,23 @@ impl MapFile {
         }
         let record: BodyRecord = postcard::from_bytes(body)
             .map_err(|e| malformed(format!("its contents do not decode ({e})")))?;
+        let bytes_of = MapBytes {
+            total: bytes.len(),
+            graph: size(&record.graph),
+            features: record
+                .keyframes
+                .iter()
+                .map(|k| k.features.as_ref().map_or(0, |f| size(f)))
+                .sum(),
+            images: record
+                .keyframes
+                .iter()
+                .map(|k| k.pixels.len() + k.kept.len())
+                .sum(),
+        };
         let mut map = Self::from_record(record).map_err(malformed)?;
         map.path = path.to_path_buf();
+        map.bytes = Some(bytes_of);
         Ok(map)
     }
 
@@ -497,6 +530,7 @@ impl MapFile {
             graph,
             keyframes,
             features,
+            bytes: None,
         })
     }
 }
@@ -591,6 +625,11 @@ fn anchored_pixels<const N: usize>(
         }
     }
     out
+}
+
+/// The encoded size of a record.
+fn size<T: Serialize>(record: &T) -> usize {
+    postcard::experimental::serialized_size(record).unwrap_or(0)
 }
 
 // ---------------------------------------------------------------------------------------------
