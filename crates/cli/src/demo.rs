@@ -70,6 +70,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         scene: SceneKind::Room,
         sensor,
         seed: args.seed,
+        path_seed: None,
         frames: Some(args.frames),
         revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
     })

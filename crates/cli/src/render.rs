@@ -64,6 +64,10 @@ pub struct RenderArgs {
     /// Seed of the textures, the trajectory's variations and the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Seed of the trajectory's variations alone (default: --seed): the same world, with the
+    /// same textures, along another path — the sessions of one place (`dwslam run --load-map`).
+    #[arg(long)]
+    pub path_seed: Option<u64>,
     /// Room only: scale of how far each revisit of a view strays from the last (1 = the default
     /// browsing, each visit within ±0.15 m of position and ±0.25 m of gaze target, about one
     /// keyframe-coverage radius, so every lap makes new views; 0 = exactly the same views).
@@ -336,6 +340,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         scene,
         sensor,
         seed: args.seed,
+        path_seed: args.path_seed,
         frames: args.frames,
         revisit_jitter,
     })
@@ -357,10 +362,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     let rate = scene.rate_hz();
     let name = format!(
-        "dwslam render {} --sensor {:?} --seed {}{}",
+        "dwslam render {} --sensor {:?} --seed {}{}{}",
         scene.name(),
         args.sensor,
         args.seed,
+        args.path_seed
+            .map_or(String::new(), |p| format!(" --path-seed {p}")),
         args.revisit_jitter
             .map_or(String::new(), |j| format!(" --revisit-jitter {j}"))
     )

@@ -46,6 +46,7 @@ fn truth(scene: SceneKind, sensor: SensorModel, seed: u64, frames: usize) -> Seq
         scene,
         sensor,
         seed,
+        path_seed: None,
         frames: Some(frames),
         revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
     })
@@ -524,6 +525,7 @@ fn revisit_jitter_reaches_the_written_ground_truth() {
         scene: SceneKind::Room,
         sensor,
         seed: 1,
+        path_seed: None,
         frames: Some(3),
         revisit_jitter,
     };

@@ -408,7 +408,7 @@ fn a_saved_map_is_described_and_loaded_by_the_next_run() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success());
     assert!(
-        text.contains(&format!("{keyframes} keyframes")) && text.contains("Rgbd"),
+        text.contains(&format!("{keyframes} keyframes")) && text.contains("rgbd fx 585"),
         "{text}"
     );
     let o = dwslam(&["map", "info", map_arg, "--json"]);

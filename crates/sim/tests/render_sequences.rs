@@ -13,6 +13,7 @@ fn sequence(scene: SceneKind, kind: SensorKind, seed: u64) -> Sequence {
         scene,
         sensor: scene.sensor(kind, w, h),
         seed,
+        path_seed: None,
         frames: None,
         revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
     })

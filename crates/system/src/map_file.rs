@@ -184,7 +184,7 @@ impl std::fmt::Display for MapCamera {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{:?} fx {} fy {} cx {} cy {}",
+            "{} fx {} fy {} cx {} cy {}",
             self.kind, self.fx, self.fy, self.cx, self.cy
         )?;
         if let Some(b) = self.baseline {
@@ -363,8 +363,8 @@ impl MapFile {
         if run.kind != mine.kind {
             return Err(mismatch(
                 "the sensor",
-                format!("{:?}", mine.kind).to_lowercase(),
-                format!("{:?}", run.kind).to_lowercase(),
+                mine.kind.to_string(),
+                run.kind.to_string(),
             ));
         }
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0);

@@ -127,6 +127,9 @@ pub struct SequenceConfig {
     pub sensor: SensorModel,
     /// Seed of the textures, the trajectory's variations and the noise.
     pub seed: u64,
+    /// Seed of the trajectory's variations alone, if not `seed`'s: the same world (textures)
+    /// along another path — sessions of one place.
+    pub path_seed: Option<u64>,
     /// Number of frames (`None`: the scene's default).
     pub frames: Option<usize>,
     /// Scale of the room browse's variation from visit to visit of a view (finite, ≥ 0): 1 is
@@ -346,28 +349,29 @@ impl Sequence {
         }
         let rate = config.scene.rate_hz();
         let duration = frames as f64 / rate;
+        let path_seed = config.path_seed.unwrap_or(config.seed);
         let (scene, path): (_, Box<dyn CameraPath>) = match config.scene {
             SceneKind::Room => (
                 worlds::room(config.seed),
                 // Planned for the default length, so that frame k is the same whatever the
                 // number of frames asked for (longer runs extend the plan).
                 Box::new(RoomBrowse::with_revisit_jitter(
-                    config.seed,
+                    path_seed,
                     duration.max(100.0),
                     config.revisit_jitter,
                 )?),
             ),
             SceneKind::Building => (
                 worlds::building(config.seed),
-                Box::new(BuildingWalk::new(config.seed)),
+                Box::new(BuildingWalk::new(path_seed)),
             ),
             SceneKind::Courtyard => (
                 worlds::courtyard(config.seed),
-                Box::new(CourtyardLaps::new(config.seed)),
+                Box::new(CourtyardLaps::new(path_seed)),
             ),
             SceneKind::Town => (
                 worlds::town(config.seed),
-                Box::new(TownDrive::new(config.seed)),
+                Box::new(TownDrive::new(path_seed)),
             ),
         };
         Ok(Sequence {

@@ -33,6 +33,7 @@ fn disparity_errors(scene: SceneKind, frames: usize, level: usize) -> (Vec<f64>,
         scene,
         sensor,
         seed: 1,
+        path_seed: None,
         frames: None,
         revisit_jitter: DEFAULT_REVISIT_JITTER,
     })
