@@ -460,7 +460,7 @@ impl MapFile {
             features: record
                 .keyframes
                 .iter()
-                .map(|k| k.features.as_ref().map_or(0, |f| size(f)))
+                .map(|k| k.features.as_ref().map_or(0, size))
                 .sum(),
             images: record
                 .keyframes

@@ -123,7 +123,18 @@ impl System {
         let vocabulary = options.vocabulary.clone().filter(|_| config.loops.enabled);
         Ok(System(match sensor {
             SensorModel::Mono(camera) => {
-                let graph = Arc::new(SharedGraph::new(SlamGraph::new()));
+                let graph = match options.load_map.as_deref() {
+                    Some(MapFile {
+                        graph: RunGraph::Mono(g),
+                        keyframes,
+                        ..
+                    }) => {
+                        *write_lock(&store) = keyframes.clone();
+                        g.clone()
+                    }
+                    _ => SlamGraph::new(),
+                };
+                let graph = Arc::new(SharedGraph::new(graph));
                 let mut mono = MonoSensor::new(*camera, &config);
                 let loops = vocabulary.map(|vocabulary| {
                     let stage = mono.loop_stage(vocabulary, &config, store.clone());

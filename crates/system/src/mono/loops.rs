@@ -196,6 +196,18 @@ impl MonoPlaces {
         self.maps.values().flat_map(|p| p.entries())
     }
 
+    /// Adds keyframe `k`'s `features` to map `map`'s database (a loaded map's).
+    pub fn insert(
+        &mut self,
+        map: usize,
+        k: KeyframeId,
+        features: KeyframeFeatures,
+    ) -> Result<(), String> {
+        self.of_mut(map)?
+            .insert(k, features)
+            .map_err(|e| e.to_string())
+    }
+
     /// Map `map`'s database, made if new.
     fn of_mut(&mut self, map: usize) -> Result<&mut PlaceRecognition, String> {
         if !self.maps.contains_key(&map) {

@@ -107,6 +107,8 @@ pub(crate) struct MonoSensor {
     accepted: BTreeMap<usize, Vec<LoopDetection>>,
     /// Live loop corrections written into the graph (shared with the loop stage).
     corrections_applied: Arc<std::sync::atomic::AtomicUsize>,
+    /// Only localise in a loaded map: no keyframe, no new map.
+    localise: bool,
 }
 
 impl MonoSensor {
@@ -153,6 +155,7 @@ impl MonoSensor {
             places: None,
             accepted: BTreeMap::new(),
             corrections_applied: Default::default(),
+            localise: false,
         }
     }
 
@@ -331,6 +334,25 @@ impl MonoSensor {
         }
         if o.camera_from_world.is_some() {
             self.lost = None;
+            if self.localise {
+                // No keyframe follows the camera: the map points are searched around the
+                // keyframe that measures most of what this frame tracked (the depth sensor's
+                // reference reuse on revisits).
+                let graph = ctx.graph.read();
+                let mut seen: BTreeMap<KeyframeId, usize> = BTreeMap::new();
+                let explorer = self.explorer.as_ref().expect("explored");
+                for p in explorer.active().values() {
+                    for &k in graph.point(*p).map(|p| p.observers()).into_iter().flatten() {
+                        *seen.entry(k).or_default() += 1;
+                    }
+                }
+                if let Some((k, _)) = seen
+                    .into_iter()
+                    .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+                {
+                    self.reference = Some(k);
+                }
+            }
         }
         let state = match o.camera_from_world {
             None => StepState::Initialising(format!(
@@ -833,6 +855,9 @@ impl Sensor<2> for MonoSensor {
         _frame: &data::sequence::Frame,
         lost_for: f64,
     ) -> Result<Option<Step>, SystemError> {
+        if self.localise {
+            return Ok(None);
+        }
         if let Some(explorer) = self.explorer.as_mut() {
             explorer.start_map(&mut ctx.graph.write());
         }
@@ -980,16 +1005,50 @@ impl Sensor<2> for MonoSensor {
         })
     }
 
-    /// Not yet: a monocular map is saved whole, but the monocular front-end cannot go on
-    /// in one (its tracks, feature filters and exploration start from a bootstrap).
+    /// A loaded map: its keyframes' features into their maps' databases, the exploration
+    /// resumed on its graph (`MonoExplorer::resume`), the camera lost until relocalised there.
     fn restore(
         &mut self,
-        _: &mut Ctx,
-        _: Vec<(KeyframeId, KeyframeFeatures)>,
-        _: bool,
+        ctx: &mut Ctx,
+        features: Vec<(KeyframeId, KeyframeFeatures)>,
+        localise: bool,
     ) -> Result<(), SystemError> {
-        Err(SystemError::Unsupported(
-            "loading a monocular map is not supported yet (stereo and RGB-D maps are)".into(),
-        ))
+        let Some(places) = &self.places else {
+            return Err(SystemError::Unsupported(
+                "a loaded map is found by its keyframes' words: this run has no vocabulary \
+                 (loops.enabled: false)"
+                    .into(),
+            ));
+        };
+        let graph = ctx.graph.read();
+        let store = read_lock(ctx.store);
+        {
+            let mut places = write_lock(places);
+            for (k, f) in features {
+                let map = graph.map_of(k).unwrap_or_default();
+                places.insert(map, k, f).map_err(SystemError::Unsupported)?;
+            }
+        }
+        let Some((_, first)) = store.iter().next() else {
+            return Ok(());
+        };
+        let config =
+            ctx.config
+                .exploration(self.camera.fx, first.gray.width(), first.gray.height());
+        let frame_of = |k: KeyframeId| store.get(k).map_or(usize::MAX, |i| i.frame_index);
+        self.explorer = Some(MonoExplorer::resume(
+            self.camera,
+            config,
+            &graph,
+            frame_of,
+            localise,
+        ));
+        self.localise = localise;
+        self.bootstrapping = false;
+        self.lost = Some(Lost {
+            frame: 0,
+            why: "not found in the loaded map yet".into(),
+        });
+        Ok(())
     }
 }
