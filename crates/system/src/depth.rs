@@ -52,8 +52,12 @@ pub(crate) struct DepthSensor {
     /// The tracker's guess for the last frame it lost (where a new map would start).
     guess: Option<Sim3>,
     next_track: TrackId,
-    /// Only localise in a loaded map: no keyframe, no new map, no final optimisation.
+    /// Only localise in a loaded map: no keyframe kept, no new map, no final optimisation.
     localise: bool,
+    /// Localising: the temporary keyframes made where the map does not cover the view
+    /// (removed at the end), and a keyframe of the loaded map every frame is kept relative to.
+    temporary: Vec<KeyframeId>,
+    loaded_anchor: Option<KeyframeId>,
 }
 
 impl DepthSensor {
@@ -71,6 +75,8 @@ impl DepthSensor {
             guess: None,
             next_track: 0,
             localise: false,
+            temporary: Vec::new(),
+            loaded_anchor: None,
             front,
         }
     }
@@ -157,9 +163,7 @@ impl DepthSensor {
                 &camera_from_world,
                 median_depth,
             );
-            // Localising in a loaded map: the nearest keyframe becomes the reference, none is
-            // made.
-            let reason = nearest.as_ref().filter(|_| !self.localise).and_then(|n| {
+            let reason = nearest.as_ref().and_then(|n| {
                 keyframe_reason(&ctx.config.keyframes, n, stats.found, stats.searched)
             });
             (reason, nearest)
@@ -191,7 +195,13 @@ impl DepthSensor {
                     false,
                 )?;
                 ctx.timings.record("keyframe: pipeline", t.elapsed());
-                Some((k, reason))
+                if self.localise {
+                    // Localising: a temporary keyframe, removed at the end (`finish`).
+                    self.temporary.push(k);
+                    None
+                } else {
+                    Some((k, reason))
+                }
             }
             None => None,
         };
@@ -211,9 +221,12 @@ impl DepthSensor {
                 TrackingState::Good => StepState::Good,
             },
             camera_from_world: Some(pose),
-            anchor: Some(match &keyframe {
-                Some((k, _)) => (*k, true),
-                None => (reference, false),
+            anchor: Some(match (&keyframe, self.loaded_anchor) {
+                (Some((k, _)), _) => (*k, true),
+                // Localising nothing moves: the frame is kept relative to a keyframe of the
+                // loaded map (temporary ones are removed at the end).
+                (None, Some(k)) => (k, false),
+                (None, None) => (reference, false),
             }),
             keyframe,
             stats: Some(stats),
@@ -278,6 +291,11 @@ impl DepthSensor {
         }
         drop(store);
         write_lock(ctx.store).insert(keyframe, images);
+        if self.localise {
+            // A temporary keyframe: tracking's alone (no optimisation, no loop closure; its
+            // loops with the map are removed with it).
+            return Ok((keyframe, map));
+        }
         for closure in &report.metric_loops {
             metric_loop(ctx, keyframe, closure.keyframe, "metric");
         }
@@ -558,6 +576,22 @@ impl Sensor<3> for DepthSensor {
     /// The bundle adjustment alone, on eleven sequences (bench/README.md, 2026-12-03): the
     /// trajectory after the run got better or stayed, at 0.03–0.9 s.
     fn finish(&mut self, ctx: &mut Ctx, interrupted: bool) -> Result<Finished<3>, SystemError> {
+        if !self.temporary.is_empty() {
+            let mut g = ctx.graph.write();
+            let mut store = write_lock(ctx.store);
+            for &k in self.temporary.iter().rev() {
+                let _ = g.remove_keyframe(k);
+                store.remove(k);
+            }
+            if let Some(k) = self.loaded_anchor {
+                let _ = g.set_reference(k);
+            }
+            ctx.warnings.push(format!(
+                "localising: {} temporary keyframes bridged views the map does not cover \
+                 (removed at the end: the map is as loaded)",
+                self.temporary.len()
+            ));
+        }
         let (world, _) = ctx.graph.read().written_maps();
         {
             let mut g = ctx.graph.write();
@@ -617,11 +651,14 @@ impl Sensor<3> for DepthSensor {
 
     fn restore(
         &mut self,
-        _: &mut Ctx,
+        ctx: &mut Ctx,
         features: Vec<(KeyframeId, KeyframeFeatures)>,
         localise: bool,
     ) -> Result<(), SystemError> {
         self.localise = localise;
+        self.loaded_anchor = localise
+            .then(|| ctx.graph.read().keyframes().map(|(k, _)| k).next())
+            .flatten();
         let Some((database, _)) = &self.relocaliser else {
             return Err(SystemError::Unsupported(
                 "a loaded map is found by its keyframes' words: this run has no vocabulary \

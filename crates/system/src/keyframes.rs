@@ -72,6 +72,11 @@ impl KeyframeStore {
         self.images.insert(id, Arc::new(images));
     }
 
+    /// Removes keyframe `id`'s images.
+    pub fn remove(&mut self, id: KeyframeId) {
+        self.images.remove(&id);
+    }
+
     /// Keyframe `id`'s images.
     pub fn get(&self, id: KeyframeId) -> Option<&Arc<KeyframeImages>> {
         self.images.get(&id)

@@ -109,9 +109,9 @@ fn ate(gt: &[lie::Se3], est: &[lie::Se3]) -> f64 {
 
 /// The saved map holds the run's graph (every keyframe, point and edge) and reads back to the
 /// same bytes; a second run localises the next 200 frames in it: at least 95 % of them
-/// tracked, not one keyframe added, the map unchanged, twice the same trajectory, and no
-/// worse than 1.2 times one session over all 700 frames on the same 200 (`dwslam run`:
-/// 2.45 cm against 2.72 cm).
+/// tracked, not one keyframe added (temporary ones bridge what the map does not cover and
+/// are removed at the end), the map unchanged, twice the same trajectory, and no worse than
+/// 1.2 times one session over all 700 frames on the same 200.
 #[test]
 fn a_saved_map_localises_the_next_frames_and_adds_nothing() {
     let Some(path) = seven_scenes() else { return };
@@ -173,11 +173,19 @@ fn a_saved_map_localises_the_next_frames_and_adds_nothing() {
     let system::RunGraph::Depth(after) = &a.graph else {
         panic!()
     };
-    assert_eq!(after.num_keyframes(), graph.num_keyframes());
-    assert_eq!(after.num_points(), graph.num_points());
-    for (k, kf) in graph.keyframes() {
-        assert_eq!(after.pose(k).unwrap(), *kf.camera_from_world(), "{k} moved");
-    }
+    // The map as loaded: the same keyframes (poses, measurements, edges) and points (the
+    // temporary keyframes that bridged views it does not cover are gone with their points).
+    let (before, now) = (graph.to_parts(), after.to_parts());
+    assert_eq!(
+        now.keyframes, before.keyframes,
+        "the map's keyframes changed"
+    );
+    assert_eq!(now.points, before.points, "the map's points changed");
+    assert!(
+        a.warnings.iter().any(|w| w.contains("temporary keyframes")),
+        "{:?}",
+        a.warnings
+    );
     // Deterministic: the same trajectory again.
     let b = localise();
     for (x, y) in a.record.frames.iter().zip(&b.record.frames) {
