@@ -430,7 +430,9 @@ impl MapFile {
         let length = u64::from_le_bytes(bytes[16..24].try_into().unwrap());
         let stored = word(24);
         let found = bytes.len() as u64;
-        if HEADER_LEN as u64 + length != found {
+        // Checked: a corrupt length near 2⁶⁴ must not wrap round to the file's (found by
+        // `cargo fuzz`, bench/fuzz).
+        if (HEADER_LEN as u64).checked_add(length) != Some(found) {
             return Err(MapFileError::Truncated {
                 path: path_buf(),
                 expected: (HEADER_LEN as u64).saturating_add(length),
@@ -776,6 +778,13 @@ impl GraphRecord {
                 .filter(|&n| n <= u32::MAX as usize)
                 .ok_or_else(|| format!("{what} {n} out of range"))
         };
+        let ids = |n: usize, what: &str| -> Result<usize, String> {
+            if n > 1 << 24 {
+                Err(format!("{n} {what} ids issued, more than 2^24"))
+            } else {
+                Ok(n)
+            }
+        };
         let mut keyframes = Vec::with_capacity(self.keyframes.len());
         for k in self.keyframes {
             if k.measurements.len() != k.points.len() * N {
@@ -822,9 +831,12 @@ impl GraphRecord {
                     version: p.version,
                 })
                 .collect(),
+            // The graph holds a slot per id ever issued: a corrupt count must not make the
+            // reader allocate gigabytes (2²⁴ ids of each: beyond any map held in memory).
             ids_issued: (
-                size(self.ids_issued.0, "keyframe ids")?,
-                size(self.ids_issued.1, "point ids")?,
+                size(self.ids_issued.0, "keyframe ids")
+                    .and_then(|n| ids(n, "keyframe"))?,
+                size(self.ids_issued.1, "point ids").and_then(|n| ids(n, "point"))?,
             ),
             reference: self.reference.map(KeyframeId),
             version: self.version,

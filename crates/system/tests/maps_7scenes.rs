@@ -258,6 +258,11 @@ fn bad_maps_are_clear_errors_never_panics() {
         MapFile::from_bytes(b"not a map at all", name),
         Err(MapFileError::NotAMap { .. })
     ));
+    // A length near 2⁶⁴ (`cargo fuzz` found it overflowing the check).
+    let mut huge = bytes.clone();
+    huge[16..24].copy_from_slice(&(u64::MAX - 3).to_le_bytes());
+    let e = MapFile::from_bytes(&huge, name).unwrap_err();
+    assert!(matches!(e, MapFileError::Truncated { .. }), "{e}");
     // A corrupted file on disk: the error names it, and the file is as it was.
     let dir = file.parent().unwrap();
     let bad_file = dir.join("bad.map");
