@@ -834,8 +834,7 @@ impl GraphRecord {
             // The graph holds a slot per id ever issued: a corrupt count must not make the
             // reader allocate gigabytes (2²⁴ ids of each: beyond any map held in memory).
             ids_issued: (
-                size(self.ids_issued.0, "keyframe ids")
-                    .and_then(|n| ids(n, "keyframe"))?,
+                size(self.ids_issued.0, "keyframe ids").and_then(|n| ids(n, "keyframe"))?,
                 size(self.ids_issued.1, "point ids").and_then(|n| ids(n, "point"))?,
             ),
             reference: self.reference.map(KeyframeId),
