@@ -25,6 +25,7 @@ pub(crate) mod keyframes;
 pub(crate) mod loops;
 pub(crate) mod mono;
 pub(crate) mod place_recognition;
+pub(crate) mod run_graph;
 pub(crate) mod search;
 pub(crate) mod session;
 pub(crate) mod tracker;

@@ -24,7 +24,7 @@
 
 use crate::keyframes::{KeyframeImages, KeyframeStore};
 use crate::place_recognition::KeyframeFeatures;
-use crate::result::RunGraph;
+use crate::run_graph::RunGraph;
 use data::camera::{SensorKind, SensorModel};
 use geom::PinholeCamera;
 use lie::{Sim3, So3};

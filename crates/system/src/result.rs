@@ -6,12 +6,13 @@ use crate::keyframes::{KeyframeReason, KeyframeStore};
 use crate::tracker::TrackerStats;
 use data::output::{RunRecord, TrackingState};
 use data::trajectory::Trajectory;
-use lie::Sim3;
 use slam::dwo::{DwoError, DwoStats};
 use slam::loop_closure::LoopDrift;
-use slam::map::{KeyframeId, SlamGraph};
+use slam::map::KeyframeId;
 use slam::mapping::MappingError;
 use std::time::Duration;
+
+pub use crate::run_graph::{KeyframeNode, RunGraph};
 
 /// How the back-end runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -174,71 +175,6 @@ pub struct RefusedLoop {
     pub allowed: Option<f64>,
     /// Why it was refused.
     pub reason: String,
-}
-
-/// The final graph of a run, of the sensor's measurement dimension.
-#[derive(Clone, Debug)]
-pub enum RunGraph {
-    /// Stereo and RGB-D: measurements `(u, v, u_r)`.
-    Depth(SlamGraph<3>),
-    /// Monocular: measurements `(u, v)`.
-    Mono(SlamGraph<2>),
-}
-
-/// A keyframe of [`RunGraph::keyframes`].
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct KeyframeNode {
-    /// Its id.
-    pub id: KeyframeId,
-    /// Its pose.
-    pub camera_from_world: Sim3,
-    /// Its map.
-    pub map: usize,
-}
-
-impl RunGraph {
-    /// Every keyframe with its pose and map, in id order.
-    pub fn keyframes(&self) -> Vec<KeyframeNode> {
-        fn of<const N: usize>(g: &SlamGraph<N>) -> Vec<KeyframeNode> {
-            g.keyframes()
-                .map(|(id, k)| KeyframeNode {
-                    id,
-                    camera_from_world: *k.camera_from_world(),
-                    map: k.map(),
-                })
-                .collect()
-        }
-        match self {
-            RunGraph::Depth(g) => of(g),
-            RunGraph::Mono(g) => of(g),
-        }
-    }
-
-    /// The covisibility edges `(a, b)` with `a < b`.
-    pub fn edges(&self) -> Vec<(KeyframeId, KeyframeId)> {
-        fn of<const N: usize>(g: &SlamGraph<N>) -> Vec<(KeyframeId, KeyframeId)> {
-            g.keyframes()
-                .flat_map(|(a, k)| {
-                    k.edges()
-                        .keys()
-                        .filter(move |&&b| a < b)
-                        .map(move |&b| (a, b))
-                })
-                .collect()
-        }
-        match self {
-            RunGraph::Depth(g) => of(g),
-            RunGraph::Mono(g) => of(g),
-        }
-    }
-
-    /// Points in the graph.
-    pub fn num_points(&self) -> usize {
-        match self {
-            RunGraph::Depth(g) => g.num_points(),
-            RunGraph::Mono(g) => g.num_points(),
-        }
-    }
 }
 
 /// How long the tracking thread waited for the locks it shares with the other threads (the

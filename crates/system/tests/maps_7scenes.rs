@@ -422,3 +422,60 @@ fn a_monocular_map_localises_too() {
         "localised {localised} m vs one session {one_session} m"
     );
 }
+
+/// Mapping on from a loaded map, starting where it is not: a map of frames 0–249, a session
+/// from frame 350 (a view it does not hold) — lost at first, a new map after
+/// `tracker.new_map_after` (3 s), merged into the loaded map when the camera comes back over
+/// it (a loop of kind "merge"); from then on one map, and the loaded keyframes are in it.
+#[test]
+fn a_session_that_starts_off_the_map_merges_with_it() {
+    let Some(path) = seven_scenes() else { return };
+    let file = std::env::temp_dir().join(format!("dwslam-merge-{}.map", std::process::id()));
+    run(
+        &path,
+        read(&path, 0..250),
+        Options {
+            save_map: Some(file.clone()),
+            ..Options::default()
+        },
+    )
+    .unwrap();
+    let map = Arc::new(MapFile::read(&file).unwrap());
+    std::fs::remove_file(&file).unwrap();
+    let loaded = map.summary().keyframes;
+    let r = run(
+        &path,
+        read(&path, 350..650),
+        Options {
+            load_map: Some(map),
+            ..Options::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(r.new_maps.len(), 1, "{:?}", r.new_maps);
+    assert!(r.new_maps[0].joined, "{:?}", r.new_maps);
+    assert!(r.loops.iter().any(|l| l.kind == "merge"), "{:?}", r.loops);
+    let system::RunGraph::Depth(graph) = &r.graph else {
+        panic!()
+    };
+    let world = r.world_map;
+    let in_world = graph.keyframes().filter(|(_, k)| k.map() == world).count();
+    assert!(
+        in_world > loaded,
+        "{in_world} keyframes in the map written, {loaded} loaded"
+    );
+    assert!(
+        graph
+            .keyframes()
+            .take(loaded)
+            .all(|(_, k)| k.map() == world),
+        "the loaded keyframes are in the map written"
+    );
+    // Every frame from the new map on is in the final trajectory (those before it were lost).
+    let posed = r.final_trajectory.world_from_body.len();
+    let since = 650 - r.new_maps[0].frame;
+    assert!(
+        posed * 100 >= 95 * since,
+        "{posed} frames in the final trajectory, {since} since the new map"
+    );
+}
