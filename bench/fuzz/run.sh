@@ -16,7 +16,6 @@ SECONDS_EACH=${1:-600}
 shift || true
 TARGETS=("$@")
 [ ${#TARGETS[@]} -eq 0 ] && TARGETS=(map_file map_body camera_file config)
-export RUSTC_BOOTSTRAP=1
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
 DATA=${DWSLAM_DATA:-../shared/data}
 CORPUS=fuzz/corpus
@@ -36,6 +35,9 @@ find "$DATA" -name 'camera*.yaml' -o -name '*.yaml' -path '*calib*' 2>/dev/null 
 find crates/system crates/data -name '*.yaml' 2>/dev/null | head -20 | while read -r f; do
   cp "$f" "$CORPUS/camera_file/$(echo "$f" | tr '/' '_')"; cp "$f" "$CORPUS/config/$(echo "$f" | tr '/' '_')"; done
 printf 'tracker:\n  search_radius: 4\nloops:\n  enabled: false\n' > "$CORPUS/config/example.yaml"
+# Set only now: it changes cargo's fingerprints, and the corpus's release build above would be
+# built again from scratch under it.
+export RUSTC_BOOTSTRAP=1
 failed=()
 for t in "${TARGETS[@]}"; do
   echo "== $t: $SECONDS_EACH s (log: fuzz/$t.log)"
