@@ -511,6 +511,11 @@ fn drive<S: LiveRun>(
         seconds,
         evaluation.as_ref(),
     ));
+    // The map's size and the process's memory every hundred frames (bounded memory on
+    // revisits, issue 43).
+    record
+        .extra
+        .insert("over_time".into(), json!(ended.over_time));
     output.write(&record, ground_truth)?;
     if let Some(e) = &evaluation {
         for line in &e.lines {
@@ -549,10 +554,24 @@ fn drive<S: LiveRun>(
     }
 }
 
-/// How the frame loop ended: what stopped it early, and how many frames were lost.
+/// How the frame loop ended: what stopped it early, how many frames were lost, and the map's
+/// size and the process's memory over the run.
 struct LoopEnd {
     failure: Option<anyhow::Error>,
     lost: usize,
+    over_time: Vec<serde_json::Value>,
+}
+
+/// Frames between two samples of `summary.json`'s `over_time`.
+const SAMPLE_EVERY: usize = 100;
+
+/// The process's resident memory in MB (Linux: `/proc/self/statm`), if known.
+fn resident_mb() -> Option<f64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: f64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    // SAFETY: sysconf has no preconditions.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    (page > 0).then(|| pages * page as f64 / 1e6)
 }
 
 /// Every frame of `stream` through `system` (a bad frame skipped or the end of the run, as
@@ -579,6 +598,14 @@ fn frame_loop<S: LiveRun>(
     );
     let mut failure: Option<anyhow::Error> = None;
     let (mut lost, mut weak, mut keyframes) = (0usize, 0usize, 0usize);
+    let mut over_time = Vec::new();
+    let mut processed = 0usize;
+    let started = Instant::now();
+    let sample = |processed: usize, system: &S| {
+        let p = system.progress();
+        json!({"frames": processed, "seconds": started.elapsed().as_secs_f64(),
+               "keyframes": p.keyframes, "points": p.points, "resident_mb": resident_mb()})
+    };
     let mut waited = Instant::now();
     for item in stream {
         system.record_timing("reader: wait", waited.elapsed());
@@ -621,6 +648,10 @@ fn frame_loop<S: LiveRun>(
             output.log_frame(f)?;
         }
         bar.inc(1);
+        processed += 1;
+        if processed.is_multiple_of(SAMPLE_EVERY) {
+            over_time.push(sample(processed, system));
+        }
         let progress = system.progress();
         bar.set_message(format!(
             "{keyframes} keyframes, {} points, {} loops, {weak} weak, {lost} lost",
@@ -629,7 +660,14 @@ fn frame_loop<S: LiveRun>(
         waited = Instant::now();
     }
     bar.finish_and_clear();
-    Ok(LoopEnd { failure, lost })
+    if !processed.is_multiple_of(SAMPLE_EVERY) {
+        over_time.push(sample(processed, system));
+    }
+    Ok(LoopEnd {
+        failure,
+        lost,
+        over_time,
+    })
 }
 
 /// The run's warnings and its one-line summary (`interrupted` by Ctrl-C).

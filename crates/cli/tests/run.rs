@@ -399,6 +399,13 @@ fn a_saved_map_is_described_and_loaded_by_the_next_run() {
             .unwrap();
     let keyframes = summary["saved_map"]["holds"]["keyframes"].as_u64().unwrap();
     assert!(keyframes >= 3, "{summary}");
+    // The map's size and the process's memory over the run: a sample every 100 frames and
+    // one at the end.
+    let over_time = summary["over_time"].as_array().unwrap();
+    let last = over_time.last().unwrap();
+    assert_eq!(last["frames"].as_u64(), Some(60));
+    assert_eq!(last["keyframes"].as_u64(), Some(keyframes));
+    assert!(last["resident_mb"].as_f64().unwrap() > 1.0, "{last}");
     assert_eq!(
         summary["saved_map"]["bytes"].as_u64().unwrap(),
         std::fs::metadata(&map).unwrap().len()

@@ -240,6 +240,8 @@ pub struct RunResult {
 /// What the progress bar shows of the map while a run goes on.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Progress {
+    /// Keyframes in the graph (every map of the run, a loaded one's included).
+    pub keyframes: usize,
     /// Points in the map.
     pub points: usize,
     /// Loop closures so far (metric and by appearance).

@@ -377,8 +377,10 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
 
     /// The map's size and the loops so far.
     pub fn progress(&self) -> Progress {
+        let graph = self.graph.read();
         Progress {
-            points: self.graph.read().num_points(),
+            keyframes: graph.num_keyframes(),
+            points: graph.num_points(),
             loops: self.loops.len(),
         }
     }
