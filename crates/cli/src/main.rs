@@ -15,6 +15,7 @@ mod pgo;
 mod plot;
 mod render;
 mod run;
+mod run_report;
 mod vocabulary;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).

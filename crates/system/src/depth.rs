@@ -660,11 +660,7 @@ impl Sensor<3> for DepthSensor {
             .then(|| ctx.graph.read().keyframes().map(|(k, _)| k).next())
             .flatten();
         let Some((database, _)) = &self.relocaliser else {
-            return Err(SystemError::Unsupported(
-                "a loaded map is found by its keyframes' words: this run has no vocabulary \
-                 (loops.enabled: false)"
-                    .into(),
-            ));
+            return Err(SystemError::map_without_vocabulary());
         };
         let mut database = write_lock(database);
         for (k, f) in features {

@@ -56,6 +56,17 @@ pub enum SystemError {
     Unsupported(String),
 }
 
+impl SystemError {
+    /// A map loaded into a run without a vocabulary: its keyframes are found by their words.
+    pub(crate) fn map_without_vocabulary() -> Self {
+        SystemError::Unsupported(
+            "a loaded map is found by its keyframes' words: this run has no vocabulary \
+             (loops.enabled: false)"
+                .into(),
+        )
+    }
+}
+
 /// The map a run saved (`Options::save_map`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SavedMap {

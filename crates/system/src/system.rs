@@ -121,6 +121,9 @@ impl System {
         let store = Arc::new(RwLock::new(KeyframeStore::new()));
         let threaded = options.mode == Mode::Threaded;
         let vocabulary = options.vocabulary.clone().filter(|_| config.loops.enabled);
+        if options.load_map.is_some() && vocabulary.is_none() {
+            return Err(SystemError::map_without_vocabulary());
+        }
         Ok(System(match sensor {
             SensorModel::Mono(camera) => {
                 let graph = match options.load_map.as_deref() {

@@ -100,6 +100,19 @@ fn saved() -> Option<&'static (PathBuf, Vec<u8>, RunResult)> {
         .as_ref()
 }
 
+/// Two runs gave every frame the same live pose (or none).
+fn assert_same_poses(a: &RunResult, b: &RunResult) {
+    assert_eq!(a.record.frames.len(), b.record.frames.len());
+    for (x, y) in a.record.frames.iter().zip(&b.record.frames) {
+        assert_eq!(
+            x.world_from_camera.map(|p| p.log()),
+            y.world_from_camera.map(|p| p.log()),
+            "frame {}",
+            x.index
+        );
+    }
+}
+
 fn ate(gt: &[lie::Se3], est: &[lie::Se3]) -> f64 {
     data::eval::ate(gt, est, data::eval::Alignment::Se3)
         .unwrap()
@@ -188,14 +201,9 @@ fn a_saved_map_localises_the_next_frames_and_adds_nothing() {
     );
     // Deterministic: the same trajectory again.
     let b = localise();
+    assert_same_poses(&a, &b);
     for (x, y) in a.record.frames.iter().zip(&b.record.frames) {
         assert_eq!(x.state, y.state, "frame {}", x.index);
-        assert_eq!(
-            x.world_from_camera.map(|p| p.log()),
-            y.world_from_camera.map(|p| p.log()),
-            "frame {}",
-            x.index
-        );
     }
     // Against one session over all 700 frames, on the same 200.
     let est: Vec<lie::Se3> = a
@@ -394,14 +402,7 @@ fn a_monocular_map_localises_too() {
     };
     assert_eq!(after.to_parts(), graph.to_parts(), "the map changed");
     let b = localise();
-    for (x, y) in a.record.frames.iter().zip(&b.record.frames) {
-        assert_eq!(
-            x.world_from_camera.map(|p| p.log()),
-            y.world_from_camera.map(|p| p.log()),
-            "frame {}",
-            x.index
-        );
-    }
+    assert_same_poses(&a, &b);
     let index_of = |i: usize| i - 500;
     let (gt_posed, est): (Vec<_>, Vec<_>) =
         posed.iter().map(|&(i, p)| (gt[index_of(i)], p)).unzip();

@@ -47,6 +47,7 @@
 //! §3.3.3) and writes them back anchored.
 
 pub mod feature_init;
+mod resume;
 
 use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
 use crate::factors::point_to_inverse_depth;
@@ -419,45 +420,6 @@ impl MonoExplorer {
             state: State::Empty,
             localise: false,
         }
-    }
-
-    /// An explorer that goes on in `graph`, a map made before (loaded from a file): every
-    /// keyframe's record from `frame_of` (the frame it was made from; the measurements of its
-    /// tracks are gone with them), every point's track a number no corner track of this run
-    /// reaches. Nothing is tracked until the camera is [`relocalise`](Self::relocalise)d in
-    /// the current map. With `localise`, frames are only tracked against the map's points: no
-    /// keyframe, no feature filter, the graph unchanged.
-    pub fn resume(
-        camera: PinholeCamera,
-        config: ExplorationConfig,
-        graph: &SlamGraph<2>,
-        frame_of: impl Fn(KeyframeId) -> usize,
-        localise: bool,
-    ) -> Self {
-        let mut explorer = Self::new(camera, config);
-        let parts = graph.to_parts();
-        let (keyframe_ids, point_ids) = parts.ids_issued;
-        explorer.map.keyframes = (0..keyframe_ids)
-            .map(|i| KeyframeFrame {
-                frame: frame_of(KeyframeId::from_index(i)),
-                measurements: Vec::new(),
-            })
-            .collect();
-        explorer.map.tracks = (0..point_ids)
-            .map(|i| TrackId::MAX - i as TrackId)
-            .collect();
-        let current = graph.current_map();
-        explorer.map_start = graph
-            .keyframes()
-            .find(|(_, k)| k.map() == current)
-            .map_or(keyframe_ids, |(k, _)| k.index());
-        explorer.localise = localise;
-        explorer
-    }
-
-    /// Whether frames are being tracked (after a bootstrap or a relocalisation).
-    pub fn is_tracking(&self) -> bool {
-        matches!(self.state, State::Tracking { .. })
     }
 
     /// The keyframes' and points' records so far (the map itself is the caller's graph).

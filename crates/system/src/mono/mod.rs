@@ -1014,11 +1014,7 @@ impl Sensor<2> for MonoSensor {
         localise: bool,
     ) -> Result<(), SystemError> {
         let Some(places) = &self.places else {
-            return Err(SystemError::Unsupported(
-                "a loaded map is found by its keyframes' words: this run has no vocabulary \
-                 (loops.enabled: false)"
-                    .into(),
-            ));
+            return Err(SystemError::map_without_vocabulary());
         };
         let graph = ctx.graph.read();
         let store = read_lock(ctx.store);
