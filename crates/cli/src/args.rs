@@ -65,6 +65,20 @@ pub fn input_dir(path: &Path, what: &str) -> Result<()> {
 
 /// An output folder: created if missing, and checked to be writable by creating and removing
 /// a probe file in it.
+/// The system's parameters from `--config FILE` (and the file's text, kept in a saved map), or
+/// the defaults.
+pub fn system_config(path: Option<&Path>) -> Result<(system::SystemConfig, String)> {
+    match path {
+        Some(path) => {
+            input_file(path, "--config")?;
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("--config {}", path.display()))?;
+            Ok((system::SystemConfig::from_file(path)?, text))
+        }
+        None => Ok((system::SystemConfig::default(), String::new())),
+    }
+}
+
 pub fn output_dir(path: &Path, what: &str) -> Result<()> {
     if path.is_file() {
         bail!("{what} {}: is a file, expected a folder", path.display());

@@ -13,7 +13,7 @@ use sim::render::sensor::DEFAULT_STEREO_BASELINE;
 use sim::render::{SceneKind, SensorKind, SensorModel, Sequence, SequenceConfig};
 use std::path::PathBuf;
 use std::sync::mpsc::sync_channel;
-use system::{Mode, SystemConfig};
+use system::Mode;
 
 /// The demo's sensors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -39,6 +39,13 @@ pub struct DemoArgs {
     /// Seed of the room's textures, the trajectory's variations and the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Scale of how far each revisit of a view strays from the last (1: the default browsing;
+    /// 0.25: nearly the same views; see `dwslam render --revisit-jitter`).
+    #[arg(long, default_value_t = sim::render::DEFAULT_REVISIT_JITTER)]
+    pub revisit_jitter: f64,
+    /// A YAML file overriding the system's parameters (as `dwslam run --config`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Output folder (trajectories, map, summary, report, as `dwslam run` writes them).
     #[arg(long, default_value = "dwslam-demo")]
     pub out: PathBuf,
@@ -56,6 +63,12 @@ const RENDER_QUEUE: usize = 4;
 /// Runs the demo.
 pub fn run(args: DemoArgs) -> Result<()> {
     anyhow::ensure!(args.frames >= 2, "--frames must be at least 2");
+    anyhow::ensure!(
+        args.revisit_jitter.is_finite() && args.revisit_jitter >= 0.0,
+        "--revisit-jitter expects a finite scale of at least 0, got {}",
+        args.revisit_jitter
+    );
+    let (config, _) = args::system_config(args.config.as_deref())?;
     let kind = match args.sensor {
         DemoSensor::Rgbd => SensorKind::Rgbd,
         DemoSensor::Stereo => SensorKind::Stereo {
@@ -72,7 +85,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         seed: args.seed,
         path_seed: None,
         frames: Some(args.frames),
-        revisit_jitter: sim::render::DEFAULT_REVISIT_JITTER,
+        revisit_jitter: args.revisit_jitter,
     })
     .context("setting up the rendered room")?;
     args::output_dir(&args.out, "--out")?;
@@ -122,7 +135,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     };
     let settings = Settings {
         out: args.out.clone(),
-        config: SystemConfig::default(),
+        config,
         mode: if args.deterministic {
             Mode::Deterministic
         } else {

@@ -105,15 +105,7 @@ pub const FINAL_TRAJECTORY_FILE: &str = "trajectory_final.tum";
 pub fn run(args: RunArgs) -> Result<()> {
     // Everything the command line says is checked before any work.
     args::input_dir(&args.path, "PATH")?;
-    let (config, config_text) = match &args.config {
-        Some(path) => {
-            args::input_file(path, "--config")?;
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("--config {}", path.display()))?;
-            (SystemConfig::from_file(path)?, text)
-        }
-        None => (SystemConfig::default(), String::new()),
-    };
+    let (config, config_text) = args::system_config(args.config.as_deref())?;
     if let Some(path) = &args.save_map {
         args::output_file(path, "--save-map")?;
     }
@@ -714,6 +706,7 @@ fn summary_extra(
                 .count()
         ),
     );
+    extra.insert("keyframes_culled".into(), json!(result.culled));
     if let Some(saved) = &result.saved_map {
         extra.insert(
             "saved_map".into(),

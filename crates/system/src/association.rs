@@ -1,7 +1,8 @@
 //! The live front-end's side of the keyframe pipeline (`slam::mapping::FrontEnd`): data
 //! association from images for a new keyframe — its tracked matches and pose, the guided search
 //! of metric loop closure (thesis §6.4.1: a 10-pixel radius), the new points where the quadtree
-//! finds room (§3.4.3, §6.3). Appearance-based loops are not closed here but by the loop
+//! finds room (§3.4.3, §6.3) — optionally only where no point of the map lies on the same
+//! surface (`keyframes.reuse_map_points`). Appearance-based loops are not closed here but by the loop
 //! closer ([`crate::loops`]), in its own thread (§6.5.2).
 
 use crate::frame::{FrameData, SensorFrontEnd};
@@ -40,6 +41,13 @@ pub struct KeyframeAssociation<'a> {
     pub spacing: f64,
     /// Smallest disparity for a new point (pixels).
     pub min_disparity: f64,
+    /// A map point projected near a corner is on the corner's surface when their depths
+    /// differ by at most this fraction (`keyframes.parallax`: the depth fraction at which
+    /// the keyframe criterion tells views apart).
+    pub same_surface: f64,
+    /// New points only where no map point of `N1` lies on the same surface
+    /// (`keyframes.reuse_map_points`).
+    pub reuse_map_points: bool,
     /// The next free track id (new points each get one).
     pub next_track: &'a mut TrackId,
     /// Points created.
@@ -79,6 +87,8 @@ impl<'a> KeyframeAssociation<'a> {
             max_new_points: config.keyframes.max_new_points,
             spacing: config.keyframes.new_point_spacing,
             min_disparity,
+            same_surface: config.keyframes.parallax,
+            reuse_map_points: config.keyframes.reuse_map_points,
             next_track,
             created: Vec::new(),
             tracked_against: None,
@@ -94,6 +104,82 @@ impl<'a> KeyframeAssociation<'a> {
 
     fn stereo_measurement(&self, u: Vector2<f64>) -> Option<Vector3<f64>> {
         stereo_measurement(self.frame, self.sensor, u, self.min_disparity)
+    }
+
+    /// The points the keyframe's neighbours (`N1`) measure that it does not, projected at its
+    /// pose: in front of it and inside the image.
+    fn known_points(&self, graph: &SlamGraph<3>, keyframe: KeyframeId) -> KnownPoints {
+        let (w, h) = (self.frame.gray().width(), self.frame.gray().height());
+        let mut known = KnownPoints::new(w, h, self.spacing, self.same_surface);
+        let Some(kf) = graph.keyframe(keyframe) else {
+            return known;
+        };
+        let pinhole = self.sensor.pinhole();
+        for p in graph.points_visible_from(&graph.n1(keyframe)) {
+            if kf.observations().contains_key(&p) {
+                continue;
+            }
+            let Ok(y) = graph.point_in_frame(p, keyframe) else {
+                continue;
+            };
+            if y.z <= 0.0 {
+                continue;
+            }
+            let u = pinhole.pixel_from_normalised(&Vector2::new(y.x / y.z, y.y / y.z));
+            if u.x >= 0.0 && u.y >= 0.0 && u.x < w as f64 && u.y < h as f64 {
+                known.insert(u.x as f32, u.y as f32, y.z);
+            }
+        }
+        known
+    }
+}
+
+/// Map points projected into a keyframe, bucketed by `spacing`-pixel cells.
+struct KnownPoints {
+    cells: Vec<Vec<(f32, f32, f64)>>,
+    columns: usize,
+    spacing: f32,
+    same_surface: f64,
+}
+
+impl KnownPoints {
+    fn new(width: usize, height: usize, spacing: f64, same_surface: f64) -> Self {
+        let spacing = spacing.max(1.0) as f32;
+        let columns = (width as f32 / spacing).ceil() as usize + 1;
+        let rows = (height as f32 / spacing).ceil() as usize + 1;
+        KnownPoints {
+            cells: vec![Vec::new(); columns * rows],
+            columns,
+            spacing,
+            same_surface,
+        }
+    }
+
+    fn cell(&self, u: f32, v: f32) -> (usize, usize) {
+        ((u / self.spacing) as usize, (v / self.spacing) as usize)
+    }
+
+    fn insert(&mut self, u: f32, v: f32, depth: f64) {
+        let (c, r) = self.cell(u, v);
+        if let Some(cell) = self.cells.get_mut(r * self.columns + c) {
+            cell.push((u, v, depth));
+        }
+    }
+
+    /// Whether a known point lies within `spacing` pixels of `(u, v)` at a depth within
+    /// `same_surface` of `depth` (relative).
+    fn near(&self, u: f32, v: f32, depth: f64) -> bool {
+        let (c, r) = self.cell(u, v);
+        let rows = self.cells.len() / self.columns;
+        (r.saturating_sub(1)..=(r + 1).min(rows - 1)).any(|r| {
+            (c.saturating_sub(1)..=(c + 1).min(self.columns - 1)).any(|c| {
+                self.cells[r * self.columns + c].iter().any(|&(x, y, d)| {
+                    (x - u).abs() <= self.spacing
+                        && (y - v).abs() <= self.spacing
+                        && (d - depth).abs() <= self.same_surface * depth
+                })
+            })
+        })
     }
 }
 
@@ -270,6 +356,15 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
                 });
             }
         }
+        // With `reuse_map_points`, the map's points already in view (those the keyframe's
+        // neighbours measure, projected at its pose): a corner where one of them lies on the
+        // same surface is that point, not a new one, even if tracking did not find it (a view
+        // seen again does not add its surfaces' points once more).
+        let known = if self.reuse_map_points {
+            self.known_points(graph, keyframe)
+        } else {
+            KnownPoints::new(w, h, self.spacing, self.same_surface)
+        };
         let corners = self.frame.corners.corners();
         let candidates = vision::quadtree::quad_points(corners);
         let tree = QuadTree::from_points(w as f32, h as f32, min_cell, &candidates);
@@ -285,6 +380,10 @@ impl FrontEnd<3> for KeyframeAssociation<'_> {
             let Some(z) = self.stereo_measurement(Vector2::new(c.u as f64, c.v as f64)) else {
                 continue;
             };
+            let depth = self.sensor.camera().depth_from_disparity(z.x - z.z);
+            if depth.is_ok_and(|d| known.near(c.u, c.v, d)) {
+                continue;
+            }
             occupied.insert(c);
             let track = *self.next_track;
             *self.next_track += 1;

@@ -299,6 +299,7 @@ impl DepthSensor {
         for closure in &report.metric_loops {
             metric_loop(ctx, keyframe, closure.keyframe, "metric");
         }
+        self.cull(ctx, keyframe);
         if let Some(old) = report.appearance_loop {
             metric_loop(ctx, keyframe, old, "appearance");
         }
@@ -308,6 +309,74 @@ impl DepthSensor {
         });
         ctx.backend.keyframe(job);
         Ok((keyframe, map))
+    }
+
+    /// Removes the points tracking no longer finds (`keyframes.cull_points`) and culls the new
+    /// `keyframe`'s redundant neighbours (`slam::mapping::culling`), with their images and
+    /// place-recognition entries. Not the reference keyframe, the keyframes the
+    /// next keyframe's prediction starts from, or a keyframe the loop closer has not added to
+    /// its database yet (its job is queued, or running: it must find the keyframe there).
+    fn cull(&mut self, ctx: &mut Ctx, keyframe: KeyframeId) {
+        let config = ctx.config.keyframes.culling();
+        let t = Instant::now();
+        if ctx.config.keyframes.cull_points {
+            let unfound = {
+                let g = ctx.graph.read();
+                self.tracker
+                    .unfound_points(&g, ctx.config.keyframes.min_found_fraction)
+            };
+            if !unfound.is_empty() {
+                // Only points no other keyframe measures: a point two keyframes measure still
+                // ties their poses in the optimisations, found by tracking or not.
+                let mut g = ctx.graph.write();
+                for p in unfound {
+                    if g.point(p).is_some_and(|pt| pt.observers().len() <= 1) {
+                        let _ = g.remove_point(p);
+                    }
+                }
+            }
+        }
+        if !config.enabled {
+            ctx.timings.record("keyframe: culling", t.elapsed());
+            return;
+        }
+        let database = self.relocaliser.as_ref().map(|(d, _)| d.clone());
+        let recent = self.mapper.recent().to_vec();
+        let retired = {
+            // The database's lock first, then the graph's (the loop closer takes them one at
+            // a time): a keyframe it holds is in its database, and stays until culled here.
+            let mut database = database.as_ref().map(|d| write_lock(d));
+            let mut g = ctx.graph.write();
+            let reference = g.reference();
+            let protected = |k: KeyframeId| {
+                Some(k) == reference
+                    || recent.contains(&k)
+                    || database.as_ref().is_some_and(|d| !d.contains(k))
+            };
+            let retired = slam::mapping::culling::cull(&mut g, keyframe, protected, &config);
+            let retired = match retired {
+                Ok(r) => r,
+                Err(e) => {
+                    ctx.warnings
+                        .push(format!("culling around keyframe {keyframe}: {e}"));
+                    Vec::new()
+                }
+            };
+            if let Some(d) = database.as_mut() {
+                for r in &retired {
+                    d.remove(r.keyframe);
+                }
+            }
+            retired
+        };
+        if !retired.is_empty() {
+            let mut store = write_lock(ctx.store);
+            for r in &retired {
+                store.remove(r.keyframe);
+            }
+        }
+        ctx.retired.extend(retired);
+        ctx.timings.record("keyframe: culling", t.elapsed());
     }
 
     /// Looks for a lost frame in the map by appearance: the keyframe whose place it shows

@@ -246,6 +246,8 @@ pub struct RunResult {
     /// The map saved at the end (`Options::save_map`), or why it could not be: the run's
     /// outputs are written either way.
     pub saved_map: Option<Result<SavedMap, String>>,
+    /// Keyframes culled during the run (`slam::mapping::culling`: redundant on revisits).
+    pub culled: usize,
 }
 
 /// What the progress bar shows of the map while a run goes on.

@@ -17,6 +17,7 @@ use lie::{LieGroup, Se3, Sim3};
 use nalgebra::{SVector, Vector2, Vector3, Vector6};
 use slam::map::{KeyframeId, PointId, SharedGraph, SlamGraph, Version};
 use slam::tracking::{MotionOnlyOptions, PoseProblem, tracking_candidates};
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use vision::dense::{DenseParams, align_pyramids};
@@ -100,7 +101,13 @@ pub struct Tracker {
     scratch: SearchScratch,
     /// The graph's map merges seen ([`slam::map::SlamGraph::merges`]).
     merges_seen: usize,
+    /// Per map point, how often a well-tracked frame searched it and found it (an inlier).
+    findings: HashMap<PointId, (u32, u32)>,
 }
+
+/// The one-sided 95 % quantile of the standard normal (the evidence [`Tracker::unfound_points`]
+/// asks for).
+const Z_95: f64 = 1.645;
 
 /// What the tracker carries from frame to frame: the motion model and the dense reference
 /// ([`Tracker::motion`], to try something and go back).
@@ -228,6 +235,7 @@ impl Tracker {
             motion: Motion::starting(None),
             scratch: SearchScratch::default(),
             merges_seen: 0,
+            findings: HashMap::new(),
         }
     }
 
@@ -344,6 +352,14 @@ impl Tracker {
             .collect();
         depths.sort_by(f64::total_cmp);
         let median_depth = depths.get(depths.len() / 2).copied().unwrap_or(f64::NAN);
+        if state == TrackingState::Good {
+            for (i, _) in &selected {
+                self.findings.entry(points[*i].point).or_default().0 += 1;
+            }
+            for i in &fit.inliers {
+                self.findings.entry(points[*i].point).or_default().1 += 1;
+            }
+        }
         self.advance(frame, &camera_from_world, &state);
         Some(Tracked {
             camera_from_world,
@@ -355,6 +371,30 @@ impl Tracker {
             stats,
             timings,
         })
+    }
+
+    /// The map points tracking no longer finds: searched `n` times by well-tracked frames and
+    /// found `f` times, with `f < q·n − z·√(n·q·(1 − q))` — a binomial test at 95 % that the
+    /// point is found in fewer than `q` of the frames that look for it, `q` the fraction of its
+    /// points a view must find not to call for a keyframe (`keyframes.min_found_fraction`): such
+    /// a point fails more often than the map is allowed to fail as a whole (a duplicate, an
+    /// occluded or unstable corner). Forgotten here once returned; the records of points gone
+    /// from `graph` are dropped.
+    pub fn unfound_points(&mut self, graph: &SlamGraph<3>, q: f64) -> Vec<PointId> {
+        let mut out = Vec::new();
+        self.findings.retain(|&p, &mut (n, f)| {
+            if graph.point(p).is_none() {
+                return false;
+            }
+            let n = n as f64;
+            let failing = (f as f64) < q * n - Z_95 * (n * q * (1.0 - q)).sqrt();
+            if failing {
+                out.push(p);
+            }
+            !failing
+        });
+        out.sort();
+        out
     }
 
     /// The pose prior (thesis eq. 6.7): dense alignment against the last frame with depth,

@@ -525,7 +525,23 @@ impl Database {
         id
     }
 
-    /// Number of entries.
+    /// Removes entry `id` from the inverted file (it is never returned again; ids stay as
+    /// they are). Nothing happens for an unknown or removed entry.
+    pub fn remove(&mut self, id: usize) {
+        let Some(v) = self.vectors.get_mut(id) else {
+            return;
+        };
+        for (w, _) in std::mem::take(v) {
+            if let Some(list) = self.inverted.get_mut(&w) {
+                list.retain(|&(e, _)| e != id);
+                if list.is_empty() {
+                    self.inverted.remove(&w);
+                }
+            }
+        }
+    }
+
+    /// Number of entries ever added (removed ones included).
     pub fn len(&self) -> usize {
         self.vectors.len()
     }
@@ -591,6 +607,14 @@ mod tests {
         }
         let v = voc.transform(&places[0]);
         assert!((score_l1(&v, &v) - 1.0).abs() < 1e-9);
+        // A removed entry is never returned again; the others keep their ids.
+        db.remove(0);
+        db.remove(0);
+        db.remove(99);
+        let r = db.query(&v, 20);
+        assert!(r.iter().all(|&(e, _)| e != 0), "{r:?}");
+        let q: Vec<Descriptor> = places[3].iter().take(40).copied().collect();
+        assert_eq!(db.query(&voc.transform(&q), 1)[0].0, 3);
         assert!(Vocabulary::train(&[], 5, 2, 5, 0).is_err());
         assert!(Vocabulary::train(&places, 1, 2, 5, 0).is_err());
     }

@@ -295,6 +295,12 @@ impl<C: InverseDepthCamera<N>, const N: usize> Mapper<C, N> {
         &self.config
     }
 
+    /// The last keyframes inserted (at most two, the newest last), which the next keyframe's
+    /// prediction starts from: not to be culled.
+    pub fn recent(&self) -> &[KeyframeId] {
+        &self.last
+    }
+
     /// The constant-velocity prediction of the next keyframe's pose from the last two
     /// (`T_{k−1}·T_{k−2}⁻¹·T_{k−1}`; the last pose alone after one keyframe), with the scale of
     /// the reference keyframe: the motion is estimated in its metric (thesis §6.2.7).

@@ -30,6 +30,7 @@
 //! its threads — tracking and insertion in the tracking thread, the optimiser in its own on a
 //! [`SharedGraph`](crate::map::SharedGraph).
 
+pub mod culling;
 mod mapper;
 mod pipeline;
 pub mod registration;

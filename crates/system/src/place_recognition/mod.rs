@@ -76,6 +76,8 @@ pub struct Detection {
 struct Entry {
     features: KeyframeFeatures,
     bow: BowVector,
+    /// Its id in the database.
+    entry: usize,
 }
 
 /// The keyframe database of large-scale loop closure (see the [module docs](self)).
@@ -165,8 +167,31 @@ impl PlaceRecognition {
         let entry = self.database.add(bow.clone());
         debug_assert_eq!(entry, self.entry_keyframe.len());
         self.entry_keyframe.push(Some(id));
-        self.keyframes.insert(id, Entry { features, bow });
+        self.keyframes.insert(
+            id,
+            Entry {
+                features,
+                bow,
+                entry,
+            },
+        );
         Ok(())
+    }
+
+    /// Removes a keyframe (culled from the map): it is never detected or relocalised again.
+    /// Returns whether it was there.
+    pub fn remove(&mut self, id: KeyframeId) -> bool {
+        let Some(e) = self.keyframes.remove(&id) else {
+            return false;
+        };
+        self.database.remove(e.entry);
+        self.entry_keyframe[e.entry] = None;
+        true
+    }
+
+    /// Whether keyframe `id` is in the database.
+    pub fn contains(&self, id: KeyframeId) -> bool {
+        self.keyframes.contains_key(&id)
     }
 
     /// The loop of keyframe `query` with an old keyframe outside `excluded` (its topological

@@ -7,7 +7,9 @@ use crate::result::FrameReport;
 use data::output::{FrameRecord, RunRecord, TrackingState};
 use lie::{LieGroup, Se3, Sim3};
 use slam::map::{FIRST_MAP, KeyframeId, SlamGraph};
+use slam::mapping::culling::Retired;
 use slam::pose_graph::rigid_from_similarity;
+use std::collections::HashMap;
 
 /// A frame's pose relative to a keyframe.
 #[derive(Clone, Copy, Debug)]
@@ -44,6 +46,10 @@ pub(crate) struct FrameLog {
     pub anchored: Vec<Anchored>,
     /// The frames tracked outside the first map.
     pub off_world: Vec<OffWorld>,
+    /// Per keyframe, the entries of `anchored` kept relative to it.
+    pub by_keyframe: HashMap<KeyframeId, Vec<usize>>,
+    /// Keyframes culled so far.
+    pub culled: usize,
 }
 
 /// The pose of a frame in the world, rigid (a monocular map's keyframes are similarities
@@ -72,7 +78,7 @@ impl FrameLog {
         if let (Some(pose), Some((k, own))) = (camera_from_world, anchor)
             && let Ok(t_k) = graph.pose(k)
         {
-            self.anchored.push(Anchored {
+            self.anchor(Anchored {
                 position,
                 keyframe: k,
                 relative: (!own).then(|| pose.compose(&t_k.inverse())),
@@ -113,12 +119,39 @@ impl FrameLog {
     /// own (a monocular bootstrap's first frame): it has the keyframe's pose after the run.
     pub fn anchor_earlier(&mut self, frame: usize, keyframe: KeyframeId) {
         if let Some(position) = self.record.frames.iter().rposition(|f| f.index == frame) {
-            self.anchored.push(Anchored {
+            self.anchor(Anchored {
                 position,
                 keyframe,
                 relative: None,
             });
         }
+    }
+
+    fn anchor(&mut self, a: Anchored) {
+        self.by_keyframe
+            .entry(a.keyframe)
+            .or_default()
+            .push(self.anchored.len());
+        self.anchored.push(a);
+    }
+
+    /// Keyframe `r.keyframe` was culled: the frames kept relative to it are kept relative to
+    /// its heir (`T = R·T_k = R·(T_k·T_h⁻¹)·T_h`), so their poses after the run follow the map
+    /// as before.
+    pub fn reanchor(&mut self, r: &Retired) {
+        self.culled += 1;
+        let Some(moved) = self.by_keyframe.remove(&r.keyframe) else {
+            return;
+        };
+        for &i in &moved {
+            let a = &mut self.anchored[i];
+            a.relative = Some(match a.relative {
+                None => r.keyframe_from_heir,
+                Some(relative) => relative.compose(&r.keyframe_from_heir),
+            });
+            a.keyframe = r.heir;
+        }
+        self.by_keyframe.entry(r.heir).or_default().extend(moved);
     }
 
     /// Records a frame that could not be read: no pose, lost for `reason`.

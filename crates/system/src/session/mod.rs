@@ -35,6 +35,7 @@ use data::output::{RunRecord, StageTimings};
 use slam::dwo::DwoStats;
 use slam::map::SharedGraph;
 use slam::map::shared::{read_lock, record_lock_waits, take_lock_waits};
+use slam::mapping::culling::Retired;
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 
@@ -55,6 +56,8 @@ pub(crate) struct Session<S: Sensor<N>, const N: usize> {
     refused: Vec<RefusedLoop>,
     optimisations: Vec<DwoStats>,
     warnings: Vec<String>,
+    /// Keyframes culled in the frame being processed.
+    retired: Vec<Retired>,
     /// The loop closer's stage times (threaded: measured in its thread).
     loop_timings: StageTimings,
     /// How long the tracking thread waited for the locks it shares.
@@ -159,6 +162,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             refused: Vec::new(),
             optimisations: Vec::new(),
             warnings: Vec::new(),
+            retired: Vec::new(),
             loop_timings: StageTimings::default(),
             lock_waits: LockWaitLog::default(),
             loop_queue_full: (0, 0),
@@ -198,6 +202,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
                 backend: &mut self.backend,
                 loops: &mut self.loops,
                 warnings: &mut self.warnings,
+                retired: &mut self.retired,
             },
         )
     }
@@ -214,6 +219,9 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
         let frame = sensor.prepare(&mut ctx, frame)?;
         let step = sensor.track(&mut ctx, &frame)?;
         let step = self.recover(&frame, index, timestamp, step)?;
+        for r in self.retired.drain(..) {
+            self.log.reanchor(&r);
+        }
         self.collect_backend();
         let report = FrameReport {
             index,

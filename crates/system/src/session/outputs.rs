@@ -83,6 +83,7 @@ pub(super) fn assemble<const N: usize>(
         .collect();
     loops.sort_by_key(|l| l.frames.0);
     RunResult {
+        culled: log.culled,
         record: log.record,
         final_trajectory,
         frames: log.reports,

@@ -15,6 +15,7 @@ use lie::Sim3;
 use slam::dwo::{DoubleWindowOptimiser, DwoError, DwoParams, DwoStats};
 use slam::map::shared::read_lock;
 use slam::map::{KeyframeId, SharedGraph, SlamGraph};
+use slam::mapping::culling::Retired;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
@@ -233,6 +234,9 @@ pub(crate) struct Context<'a, L: Stage<N>, C: DwoCamera<N>, const N: usize> {
     pub loops: &'a mut Vec<LoopEvent>,
     /// Things that failed without stopping the run.
     pub warnings: &'a mut Vec<String>,
+    /// Keyframes culled (`slam::mapping::culling`): the session moves what it kept relative
+    /// to them onto their heirs.
+    pub retired: &'a mut Vec<Retired>,
 }
 
 impl<L: Stage<N>, C: DwoCamera<N>, const N: usize> Context<'_, L, C, N> {
