@@ -66,8 +66,10 @@ impl DepthSensor {
     pub fn new(front: SensorFrontEnd, config: &SystemConfig, keep_depth: bool) -> Self {
         let camera = *front.camera();
         let sigma = config.pixel_noise;
+        let mut tracker = Tracker::new(config.tracker.clone(), camera, sigma);
+        tracker.record_findings(config.keyframes.cull_points);
         DepthSensor {
-            tracker: Tracker::new(config.tracker.clone(), camera, sigma),
+            tracker,
             mapper: Mapper::new(camera, config.keyframe_pipeline(&camera)),
             dwo: config.double_window(camera.pinhole.fx, Some(camera.baseline)),
             keep_depth,

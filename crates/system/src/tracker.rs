@@ -101,8 +101,10 @@ pub struct Tracker {
     scratch: SearchScratch,
     /// The graph's map merges seen ([`slam::map::SlamGraph::merges`]).
     merges_seen: usize,
-    /// Per map point, how often a well-tracked frame searched it and found it (an inlier).
-    findings: HashMap<PointId, (u32, u32)>,
+    /// Per map point, how often a well-tracked frame searched it and found it (an inlier);
+    /// `None` unless they are asked for ([`Tracker::record_findings`]: `keyframes.cull_points`),
+    /// so that no frame pays for records nobody reads.
+    findings: Option<HashMap<PointId, (u32, u32)>>,
 }
 
 /// The one-sided 95 % quantile of the standard normal (the evidence [`Tracker::unfound_points`]
@@ -235,7 +237,7 @@ impl Tracker {
             motion: Motion::starting(None),
             scratch: SearchScratch::default(),
             merges_seen: 0,
-            findings: HashMap::new(),
+            findings: None,
         }
     }
 
@@ -352,12 +354,16 @@ impl Tracker {
             .collect();
         depths.sort_by(f64::total_cmp);
         let median_depth = depths.get(depths.len() / 2).copied().unwrap_or(f64::NAN);
-        if state == TrackingState::Good {
+        if let Some(findings) = self
+            .findings
+            .as_mut()
+            .filter(|_| state == TrackingState::Good)
+        {
             for (i, _) in &selected {
-                self.findings.entry(points[*i].point).or_default().0 += 1;
+                findings.entry(points[*i].point).or_default().0 += 1;
             }
             for i in &fit.inliers {
-                self.findings.entry(points[*i].point).or_default().1 += 1;
+                findings.entry(points[*i].point).or_default().1 += 1;
             }
         }
         self.advance(frame, &camera_from_world, &state);
@@ -373,6 +379,13 @@ impl Tracker {
         })
     }
 
+    /// Keep (or stop keeping) the records [`Tracker::unfound_points`] judges from.
+    pub fn record_findings(&mut self, on: bool) {
+        if on != self.findings.is_some() {
+            self.findings = on.then(HashMap::new);
+        }
+    }
+
     /// The map points tracking no longer finds: searched `n` times by well-tracked frames and
     /// found `f` times, with `f < q·n − z·√(n·q·(1 − q))` — a binomial test at 95 % that the
     /// point is found in fewer than `q` of the frames that look for it, `q` the fraction of its
@@ -382,7 +395,10 @@ impl Tracker {
     /// from `graph` are dropped.
     pub fn unfound_points(&mut self, graph: &SlamGraph<3>, q: f64) -> Vec<PointId> {
         let mut out = Vec::new();
-        self.findings.retain(|&p, &mut (n, f)| {
+        let Some(findings) = self.findings.as_mut() else {
+            return out;
+        };
+        findings.retain(|&p, &mut (n, f)| {
             if graph.point(p).is_none() {
                 return false;
             }
