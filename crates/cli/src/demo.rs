@@ -5,10 +5,10 @@
 //! `dwslam render` writes; the ground truth is the renderer's.
 
 use crate::args;
-use crate::run::{Outcome, Settings, Source, execute};
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use data::trajectory::Trajectory;
+use runner::{Outcome, Settings, Source, execute};
 use sim::render::sensor::DEFAULT_STEREO_BASELINE;
 use sim::render::{SceneKind, SensorKind, SensorModel, Sequence, SequenceConfig};
 use std::path::PathBuf;
@@ -132,6 +132,8 @@ pub fn run(args: DemoArgs) -> Result<()> {
         ground_truth: Some(ground_truth),
         skip_bad_frames: false,
         stream: Box::new(rx.into_iter()),
+        // The rendered frames carry their depth images already decoded.
+        depth: None,
     };
     let settings = Settings {
         out: args.out.clone(),
@@ -145,8 +147,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         dense_ply: args.sensor == DemoSensor::Rgbd,
         quiet: args.quiet,
         maps: Default::default(),
+        stop: crate::run::stop_on_ctrl_c(),
     };
-    let outcome = execute(source, &settings)?;
+    let outcome = execute(source, &settings, &crate::run_report::report)?.outcome;
     print_summary(&outcome, &args);
     Ok(())
 }

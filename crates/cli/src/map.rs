@@ -2,8 +2,8 @@
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
+use runner::map_line;
 use std::path::PathBuf;
-use std::sync::Arc;
 use system::map_file::{FORMAT_VERSION, MapFile};
 
 /// Subcommands of `dwslam map`.
@@ -84,25 +84,4 @@ fn info(args: &InfoArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// The maps of a run: saved at its end, loaded at its start (`--save-map`, `--load-map`).
-#[derive(Default)]
-pub struct MapOptions {
-    /// Save the map here at the end.
-    pub save: Option<PathBuf>,
-    /// Go on in this map.
-    pub load: Option<Arc<MapFile>>,
-    /// Only localise in it.
-    pub localise: bool,
-    /// The configuration overrides (YAML), kept in a saved map.
-    pub config_text: String,
-}
-
-/// One line of what a map holds.
-pub fn map_line(s: &system::map_file::MapSummary) -> String {
-    format!(
-        "{} keyframes, {} points, {} maps, {} edges ({} marginalised), {} keypoints",
-        s.keyframes, s.points, s.maps, s.edges, s.marginalised_edges, s.keypoints
-    )
 }
