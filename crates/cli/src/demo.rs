@@ -55,6 +55,8 @@ pub struct DemoArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub view: crate::view::ViewArgs,
 }
 
 /// Frames rendered ahead of the live system (bounded: the renderer waits when it is ahead).
@@ -149,7 +151,14 @@ pub fn run(args: DemoArgs) -> Result<()> {
         maps: Default::default(),
         stop: crate::run::stop_on_ctrl_c(),
     };
-    let outcome = execute(source, &settings, &crate::run_report::report)?.outcome;
+    let mut view = crate::view::open(&args.view, &source)?;
+    let outcome = execute(
+        source,
+        &settings,
+        &crate::run_report::report,
+        view.as_deref_mut(),
+    )?
+    .outcome;
     print_summary(&outcome, &args);
     Ok(())
 }

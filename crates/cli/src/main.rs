@@ -16,6 +16,7 @@ mod plot;
 mod render;
 mod run;
 mod run_report;
+mod view;
 mod vocabulary;
 
 /// dwslam — double window optimisation visual SLAM (Strasdat 2012).

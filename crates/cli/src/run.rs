@@ -79,6 +79,8 @@ pub struct RunArgs {
     /// No progress bar (for logs).
     #[arg(long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub view: crate::view::ViewArgs,
 }
 
 /// Runs the live system on a sequence.
@@ -161,7 +163,14 @@ pub fn run(args: RunArgs) -> Result<()> {
         },
         stop: stop_on_ctrl_c(),
     };
-    runner::execute(source, &settings, &crate::run_report::report).map(|_| ())
+    let mut view = crate::view::open(&args.view, &source)?;
+    runner::execute(
+        source,
+        &settings,
+        &crate::run_report::report,
+        view.as_deref_mut(),
+    )?;
+    Ok(())
 }
 
 /// A flag set by Ctrl-C (the run stops after the frame in hand and writes its outputs); a

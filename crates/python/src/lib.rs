@@ -330,7 +330,7 @@ fn run<'py>(
                 },
                 stop,
             };
-            let finished = runner::execute(source, &settings, &|_, _, _, _| Ok(()));
+            let finished = runner::execute(source, &settings, &|_, _, _, _| Ok(()), None);
             if temporary {
                 let _ = std::fs::remove_dir_all(&out);
             }
@@ -535,6 +535,7 @@ impl System {
                         config_text,
                     },
                     keyframe_depth: false,
+                    observe: false,
                     faults: Default::default(),
                 },
             )

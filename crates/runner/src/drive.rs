@@ -110,6 +110,32 @@ pub fn map_line(s: &system::map_file::MapSummary) -> String {
 /// the evaluation used.
 pub type Report<'a> = &'a dyn Fn(&Path, &RunResult, Option<&Trajectory>, Alignment) -> Result<()>;
 
+/// What a live view sees of a run as it goes (`dwslam run --view`): every frame before the
+/// system takes it, what became of it (with the points the front-end looked at: the system
+/// reports them when a run has an observer), and the result at the end. Called in the
+/// tracking thread: an observer hands its work on (the Rerun SDK batches and writes on its
+/// own threads) rather than doing it there.
+pub trait Observer {
+    /// A frame, before the system processes it.
+    fn frame(&mut self, frame: &Frame);
+    /// What became of the frame: its report and its record (the pose as tracked), and the
+    /// map on request (a copy made under the graph's read lock: ask for it sparingly).
+    fn tracked(
+        &mut self,
+        report: &system::FrameReport,
+        record: &data::output::FrameRecord,
+        map: &dyn Fn() -> system::MapSnapshot,
+    );
+    /// The run's result (the map after the final optimisation, the trajectory after the
+    /// run), with the ground truth and the alignment the evaluation uses.
+    fn finished(
+        &mut self,
+        result: &RunResult,
+        ground_truth: Option<&Trajectory>,
+        alignment: Alignment,
+    );
+}
+
 /// A finished run: what it measured, the live system's result and the summary written to
 /// `summary.json`.
 pub struct Finished {
@@ -140,7 +166,12 @@ pub struct Outcome {
 
 /// Runs the live system on a source of frames and writes the outputs, the summary and
 /// `report`'s pictures into `settings.out`.
-pub fn execute(source: Source, settings: &Settings, report: Report) -> Result<Finished> {
+pub fn execute(
+    source: Source,
+    settings: &Settings,
+    report: Report,
+    observer: Option<&mut (dyn Observer + '_)>,
+) -> Result<Finished> {
     let Source {
         name,
         sensor,
@@ -183,6 +214,7 @@ pub fn execute(source: Source, settings: &Settings, report: Report) -> Result<Fi
             name,
             maps: settings.maps.clone(),
             keyframe_depth: settings.dense_ply,
+            observe: observer.is_some(),
             faults,
         },
     )?;
@@ -195,7 +227,7 @@ pub fn execute(source: Source, settings: &Settings, report: Report) -> Result<Fi
             _ => Ok(()),
         }
     };
-    drive(system, run, settings, alignment, dense, report)
+    drive(system, run, settings, (alignment, dense, report, observer))
 }
 
 /// How a run's [`System`] is set up beside its sensor and configuration.
@@ -208,6 +240,8 @@ pub struct SystemSetup {
     pub maps: MapOptions,
     /// Keep each keyframe's depth image (only the dense model needs it).
     pub keyframe_depth: bool,
+    /// Report each frame's observed points (a live view).
+    pub observe: bool,
     /// Faults for the back-end's threads (tests).
     pub faults: system::Faults,
 }
@@ -238,6 +272,7 @@ pub fn new_system(
             load_map: maps.load,
             localise: maps.localise,
             config_text: maps.config_text,
+            observe: setup.observe,
             faults: setup.faults,
         },
     )?)
@@ -343,13 +378,16 @@ struct Run {
 /// The frame loop and everything after it: the progress bar, the outputs (with `extra`
 /// writing what only a sensor has), ATE/RPE after `alignment` (`Sim3` for a monocular run,
 /// whose scale is its own), the report.
-fn drive<S: LiveRun>(
+fn drive<'o, S: LiveRun>(
     mut system: S,
     run: Run,
     settings: &Settings,
-    alignment: Alignment,
-    extra: impl FnOnce(&RunResult) -> Result<()>,
-    report: Report,
+    (alignment, extra, report, mut observer): (
+        Alignment,
+        impl FnOnce(&RunResult) -> Result<()>,
+        Report,
+        Option<&mut (dyn Observer + 'o)>,
+    ),
 ) -> Result<Finished> {
     let Run {
         frames,
@@ -366,12 +404,16 @@ fn drive<S: LiveRun>(
         &mut output,
         (frames, skip_bad_frames, settings.quiet),
         &stop,
+        observer.as_deref_mut(),
     )?;
     let seconds = start.elapsed().as_secs_f64();
     let stopped = stop.load(Ordering::SeqCst);
     let result = system.finish(stopped || ended.failure.is_some())?;
     print_result(&result, seconds, stopped);
     let ground_truth = ground_truth.as_ref();
+    if let Some(o) = observer {
+        o.finished(&result, ground_truth, alignment);
+    }
     let evaluation = ground_truth.map(|gt| evaluate(gt, &result, alignment));
     let mut record = result.record.clone();
     record.extra.extend(summary_extra(
@@ -450,12 +492,13 @@ fn resident_mb() -> Option<f64> {
 /// Every frame of `stream` through `system` (a bad frame skipped or the end of the run, as
 /// `--on-bad-frame` says), each frame's line into the log, with a progress bar (`frames`
 /// long, hidden if `quiet`); until the stream ends, a frame fails or `stop` (Ctrl-C).
-fn frame_loop<S: LiveRun>(
+fn frame_loop<'o, S: LiveRun>(
     system: &mut S,
     stream: Frames,
     output: &mut RunOutput,
     (frames, skip_bad_frames, quiet): (usize, bool, bool),
     stop: &AtomicBool,
+    mut observer: Option<&mut (dyn Observer + 'o)>,
 ) -> Result<LoopEnd> {
     let bar = if quiet {
         ProgressBar::hidden()
@@ -485,9 +528,17 @@ fn frame_loop<S: LiveRun>(
         if stop.load(Ordering::SeqCst) {
             break;
         }
+        if let (Ok(frame), Some(o)) = (&item, observer.as_deref_mut()) {
+            o.frame(frame);
+        }
         match item {
             Ok(frame) => match system.process(frame) {
                 Ok(report) => {
+                    if let (Some(o), Some(record)) =
+                        (observer.as_deref_mut(), system.record().frames.last())
+                    {
+                        o.tracked(&report, record, &|| system.snapshot());
+                    }
                     match report.state {
                         TrackingState::Lost(_) => lost += 1,
                         TrackingState::Weak(_) => weak += 1,

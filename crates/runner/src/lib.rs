@@ -15,8 +15,8 @@ mod sequence;
 mod summary;
 
 pub use drive::{
-    DENSE_FILE, Finished, Frames, MapOptions, Outcome, Report, Settings, Source, SystemSetup,
-    alignment_of, execute, load_map, map_line, new_system, vocabulary,
+    DENSE_FILE, Finished, Frames, MapOptions, Observer, Outcome, Report, Settings, Source,
+    SystemSetup, alignment_of, execute, load_map, map_line, new_system, vocabulary,
 };
 pub use sequence::{RequestError, SequenceRequest, open_sequence, sensor_name};
 pub use summary::{FINAL_TRAJECTORY_FILE, FRAME_STATS_FILE, OPTIMISATION_STATS_FILE, summary_of};

@@ -61,6 +61,11 @@ pub(crate) struct DepthSensor {
 }
 
 impl DepthSensor {
+    /// Report (or stop reporting) each frame's searched points, for a live view.
+    pub fn observe(&mut self, on: bool) {
+        self.tracker.observe(on);
+    }
+
     /// The front-end for `front`'s camera with `config`; `keep_depth`: keep the keyframes'
     /// depth images.
     pub fn new(front: SensorFrontEnd, config: &SystemConfig, keep_depth: bool) -> Self {
@@ -145,6 +150,7 @@ impl DepthSensor {
             then,
             median_depth,
             stats,
+            observed,
             ..
         } = tracked;
         // The keyframe the pose was tracked against (the reference may change below).
@@ -235,6 +241,7 @@ impl DepthSensor {
             time_tracking,
             relocalised: None,
             earlier_keyframe: None,
+            observed,
         })
     }
 

@@ -39,8 +39,9 @@ pub use keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
 pub use place_recognition::vocabulary;
 pub use place_recognition::{Alignment, OrbConfig, PlaceRecognitionConfig};
 pub use result::{
-    FrameReport, KeyframeNode, LiveRun, LockWaits, LoopEvent, LoopEvidence, Mode, NewMap, Progress,
-    RefusedLoop, Relocalisation, RunGraph, RunResult, SavedMap, SystemError,
+    FrameReport, KeyframeNode, LiveRun, LockWaits, LoopEvent, LoopEvidence, MapSnapshot, Mode,
+    NewMap, Observed, ObservedState, Progress, RefusedLoop, Relocalisation, RunGraph, RunResult,
+    SavedMap, SystemError,
 };
 pub use session::backend::Fault;
 pub use session::sensor::Faults;

@@ -93,6 +93,41 @@ pub struct LoopEvidence {
     pub old_points_predicted: usize,
 }
 
+/// A map point or corner track the front-end looked at in a frame, where it was in the image
+/// and what became of it (a live view colours them; `Options::observe`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observed {
+    /// Image position (pixels): where it was found, or predicted where it was not.
+    pub uv: [f32; 2],
+    /// What became of it.
+    pub state: ObservedState,
+}
+
+/// What became of an [`Observed`] point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ObservedState {
+    /// A map point found and kept by the motion-only BA (monocular: a map point's track).
+    Inlier,
+    /// Found, but rejected by the motion-only BA.
+    Outlier,
+    /// Searched for where it was predicted, not found.
+    NotFound,
+    /// A monocular corner track that is not (yet) a map point.
+    Track,
+}
+
+impl ObservedState {
+    /// `"inlier"`, `"outlier"`, `"not found"` or `"track"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObservedState::Inlier => "inlier",
+            ObservedState::Outlier => "outlier",
+            ObservedState::NotFound => "not found",
+            ObservedState::Track => "track",
+        }
+    }
+}
+
 /// What happened to one frame.
 #[derive(Clone, Debug)]
 pub struct FrameReport {
@@ -108,6 +143,9 @@ pub struct FrameReport {
     pub time: Duration,
     /// Time of the tracking stages (the keyframe pipeline excluded).
     pub time_tracking: Duration,
+    /// The points the front-end looked at, with `Options::observe` (empty otherwise, and in
+    /// the reports a run's result keeps).
+    pub observed: Vec<Observed>,
 }
 
 /// A loop closure the run made.
@@ -250,6 +288,34 @@ pub struct RunResult {
     pub culled: usize,
 }
 
+/// The map as it is while a run goes on, in the world of the maps that will be written (a
+/// live view draws it): the keyframes, the points (coloured from their anchor's image), the
+/// keyframes' covisibility edges and the loops closed.
+#[derive(Clone, Debug, Default)]
+pub struct MapSnapshot {
+    /// The keyframes, by timestamp.
+    pub keyframes: Vec<data::output::KeyframeRecord>,
+    /// The map points.
+    pub points: Vec<data::output::MapPoint>,
+    /// Covisibility edges between keyframes (their ids, the smaller first), and whether the
+    /// edge is marginalised (a pose constraint of the outer window).
+    pub edges: Vec<(usize, usize, bool)>,
+    /// The loops closed: the new keyframe, the old one, and the scale drift corrected
+    /// (monocular).
+    pub loops: Vec<(usize, usize, Option<f64>)>,
+}
+
+impl RunResult {
+    /// The map after the run as a [`MapSnapshot`] (what a live view draws at the end).
+    pub fn snapshot(&self) -> MapSnapshot {
+        use crate::session::outputs::snapshot;
+        match &self.graph {
+            RunGraph::Depth(g) => snapshot(g, &self.keyframes, &self.loops),
+            RunGraph::Mono(g) => snapshot(g, &self.keyframes, &self.loops),
+        }
+    }
+}
+
 /// What the progress bar shows of the map while a run goes on.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Progress {
@@ -277,4 +343,6 @@ pub trait LiveRun {
     fn finish(self, interrupted: bool) -> Result<RunResult, SystemError>;
     /// The map's size and the loops closed so far, for the progress bar.
     fn progress(&self) -> Progress;
+    /// The map as it is now, for a live view (a copy made under the graph's read lock).
+    fn snapshot(&self) -> MapSnapshot;
 }

@@ -7,7 +7,7 @@ use crate::keyframes::KeyframeStore;
 use crate::map_file::{MapAbout, MapCamera, MapFile, VocabularyId};
 use crate::mono::MonoSensor;
 use crate::result::RunGraph;
-use crate::result::{FrameReport, LiveRun, Mode, Progress, RunResult, SystemError};
+use crate::result::{FrameReport, LiveRun, MapSnapshot, Mode, Progress, RunResult, SystemError};
 use crate::session::backend::Worker;
 use crate::session::sensor::Faults;
 use crate::session::{Backend, Optimise, Session};
@@ -44,6 +44,8 @@ pub struct Options {
     pub localise: bool,
     /// The configuration overrides the run was given (YAML), kept in a saved map.
     pub config_text: String,
+    /// Report each frame's observed points ([`FrameReport::observed`]), for a live view.
+    pub observe: bool,
     /// Faults for the back-end's threads (tests).
     #[doc(hidden)]
     pub faults: Faults,
@@ -60,6 +62,7 @@ impl Default for Options {
             load_map: None,
             localise: false,
             config_text: String::new(),
+            observe: false,
             faults: Faults::default(),
         }
     }
@@ -139,6 +142,7 @@ impl System {
                 };
                 let graph = Arc::new(SharedGraph::new(graph));
                 let mut mono = MonoSensor::new(*camera, &config);
+                mono.observe(options.observe);
                 let loops = vocabulary.map(|vocabulary| {
                     let stage = mono.loop_stage(vocabulary, &config, store.clone());
                     let template = stage.again();
@@ -171,6 +175,7 @@ impl System {
                 let front = SensorFrontEnd::new(sensor, &config)?;
                 let camera = *front.camera();
                 let mut depth = DepthSensor::new(front, &config, options.keyframe_depth);
+                depth.observe(options.observe);
                 let params = depth.dwo_params().clone();
                 let optimiser = Worker::new(
                     "double window optimisation",
@@ -280,6 +285,13 @@ impl LiveRun for System {
         match &self.0 {
             Inner::Depth(s) => s.progress(),
             Inner::Mono(s) => s.progress(),
+        }
+    }
+
+    fn snapshot(&self) -> MapSnapshot {
+        match &self.0 {
+            Inner::Depth(s) => s.snapshot(),
+            Inner::Mono(s) => s.snapshot(),
         }
     }
 }

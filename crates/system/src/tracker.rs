@@ -10,6 +10,7 @@
 use crate::config::TrackerConfig;
 use crate::frame::FrameData;
 use crate::keyframes::KeyframeStore;
+use crate::result::{Observed, ObservedState};
 use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
 use data::output::TrackingState;
 use geom::StereoCamera;
@@ -70,6 +71,9 @@ pub struct Tracked {
     pub stats: TrackerStats,
     /// Time per stage.
     pub timings: Vec<(&'static str, Duration)>,
+    /// The points searched, found and kept, for a live view ([`Tracker::observe`]; empty
+    /// otherwise).
+    pub observed: Vec<Observed>,
 }
 
 /// The graph as a frame was tracked against it ([`Tracked::then`]).
@@ -105,6 +109,38 @@ pub struct Tracker {
     /// `None` unless they are asked for ([`Tracker::record_findings`]: `keyframes.cull_points`),
     /// so that no frame pays for records nobody reads.
     findings: Option<HashMap<PointId, (u32, u32)>>,
+    /// Report each frame's searched points ([`Tracked::observed`]).
+    observe: bool,
+}
+
+/// The searched candidates `selected` (at their predicted positions) as not found, unless
+/// `found` (at the position found), kept by the motion-only BA if among `inliers` (candidate
+/// indices all three).
+fn observed(
+    selected: &[(usize, Vector2<f64>)],
+    found: &[(usize, Vector2<f64>)],
+    inliers: &[usize],
+) -> Vec<Observed> {
+    let uv = |u: &Vector2<f64>| [u.x as f32, u.y as f32];
+    let found_at: HashMap<usize, &Vector2<f64>> = found.iter().map(|(i, u)| (*i, u)).collect();
+    let kept: std::collections::HashSet<usize> = inliers.iter().copied().collect();
+    selected
+        .iter()
+        .map(|(i, predicted)| match found_at.get(i) {
+            Some(u) => Observed {
+                uv: uv(u),
+                state: if kept.contains(i) {
+                    ObservedState::Inlier
+                } else {
+                    ObservedState::Outlier
+                },
+            },
+            None => Observed {
+                uv: uv(predicted),
+                state: ObservedState::NotFound,
+            },
+        })
+        .collect()
 }
 
 /// The one-sided 95 % quantile of the standard normal (the evidence [`Tracker::unfound_points`]
@@ -238,6 +274,7 @@ impl Tracker {
             scratch: SearchScratch::default(),
             merges_seen: 0,
             findings: None,
+            observe: false,
         }
     }
 
@@ -366,6 +403,11 @@ impl Tracker {
                 findings.entry(points[*i].point).or_default().1 += 1;
             }
         }
+        let observed = if self.observe {
+            observed(&selected, &found, &fit.inliers)
+        } else {
+            Vec::new()
+        };
         self.advance(frame, &camera_from_world, &state);
         Some(Tracked {
             camera_from_world,
@@ -376,7 +418,14 @@ impl Tracker {
             median_depth,
             stats,
             timings,
+            observed,
         })
+    }
+
+    /// Report (or stop reporting) each frame's searched points, where they were found and
+    /// whether the motion-only BA kept them ([`Tracked::observed`]), for a live view.
+    pub fn observe(&mut self, on: bool) {
+        self.observe = on;
     }
 
     /// Keep (or stop keeping) the records [`Tracker::unfound_points`] judges from.

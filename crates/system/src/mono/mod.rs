@@ -39,7 +39,7 @@ use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
 use crate::place_recognition::KeyframeFeatures;
 use crate::place_recognition::features::extract as extract_features;
-use crate::result::{Relocalisation, RunGraph, SystemError};
+use crate::result::{Observed, ObservedState, Relocalisation, RunGraph, SystemError};
 use crate::search::{
     CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX, SearchPoint, SearchScratch, predict, relocate,
     search, view_angle,
@@ -109,6 +109,8 @@ pub(crate) struct MonoSensor {
     corrections_applied: Arc<std::sync::atomic::AtomicUsize>,
     /// Only localise in a loaded map: no keyframe, no new map.
     localise: bool,
+    /// Report each frame's corner tracks (`Step::observed`), for a live view.
+    observe: bool,
 }
 
 impl MonoSensor {
@@ -156,7 +158,14 @@ impl MonoSensor {
             accepted: BTreeMap::new(),
             corrections_applied: Default::default(),
             localise: false,
+            observe: false,
         }
+    }
+
+    /// Report (or stop reporting) each frame's corner tracks, map points among them, for a
+    /// live view.
+    pub fn observe(&mut self, on: bool) {
+        self.observe = on;
     }
 
     /// The loop stage for this sensor with `vocabulary`, sharing its keyframe databases with
@@ -277,11 +286,26 @@ impl MonoSensor {
         // Tracking ends with the exploration (its window BA included); place recognition of
         // a new keyframe is not tracking.
         let time_tracking = start.elapsed();
+        let observed = match (&self.explorer, self.observe) {
+            (Some(explorer), true) => measurements
+                .iter()
+                .map(|(id, u)| Observed {
+                    uv: [u.x as f32, u.y as f32],
+                    state: if explorer.active().contains_key(id) {
+                        ObservedState::Inlier
+                    } else {
+                        ObservedState::Track
+                    },
+                })
+                .collect(),
+            _ => Vec::new(),
+        };
         match outcome {
             Ok(o) => {
                 let step = self.outcome(ctx, frame, o, n_tracks, refound, relocalised, explored);
                 Ok(Step {
                     time_tracking,
+                    observed,
                     ..step
                 })
             }
@@ -391,6 +415,8 @@ impl MonoSensor {
                     ..r
                 }),
             earlier_keyframe,
+            // Set by the caller, which has the frame's tracks.
+            observed: Vec::new(),
         }
     }
 

@@ -170,6 +170,7 @@ impl FrameLog {
             stats: None,
             time: std::time::Duration::ZERO,
             time_tracking: std::time::Duration::ZERO,
+            observed: Vec::new(),
         });
     }
 

@@ -29,7 +29,8 @@ use crate::config::SystemConfig;
 use crate::keyframes::KeyframeStore;
 use crate::map_file::MapAbout;
 use crate::result::{
-    FrameReport, LoopEvent, Progress, RefusedLoop, Relocalisation, RunResult, SavedMap, SystemError,
+    FrameReport, LoopEvent, MapSnapshot, Progress, RefusedLoop, Relocalisation, RunResult,
+    SavedMap, SystemError,
 };
 use data::output::{RunRecord, StageTimings};
 use slam::dwo::DwoStats;
@@ -230,6 +231,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             stats: step.stats.clone(),
             time: start.elapsed(),
             time_tracking: step.time_tracking,
+            observed: Vec::new(),
         };
         self.log
             .record
@@ -240,10 +242,12 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
         if let Some((frame, keyframe)) = step.earlier_keyframe {
             self.log.anchor_earlier(frame, keyframe);
         }
-        let report = {
+        let mut report = {
             let graph = self.graph.read();
             self.log.push(&graph, timestamp, pose, anchor, report)
         };
+        // The observed points go to the caller only: the run's reports keep none.
+        report.observed = step.observed;
         self.lock_waits.frame(take_lock_waits());
         Ok(report)
     }
@@ -391,6 +395,13 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             points: graph.num_points(),
             loops: self.loops.len(),
         }
+    }
+
+    /// The map as it is now, for a live view.
+    pub fn snapshot(&self) -> MapSnapshot {
+        let graph = self.graph.read();
+        let store = read_lock(&self.store);
+        outputs::snapshot(&graph, &store, &self.loops)
     }
 
     /// Ends the run: the back-end's workers finish their queues, the sensor's final

@@ -7,7 +7,7 @@ use super::log::{FrameLog, in_world};
 use super::sensor::Finished;
 use crate::keyframes::KeyframeStore;
 use crate::result::{
-    LockWaits, LoopEvent, NewMap, RefusedLoop, Relocalisation, RunGraph, RunResult,
+    LockWaits, LoopEvent, MapSnapshot, NewMap, RefusedLoop, Relocalisation, RunGraph, RunResult,
 };
 use data::output::{KeyframeRecord, MapPoint};
 use data::trajectory::Trajectory;
@@ -99,6 +99,37 @@ pub(super) fn assemble<const N: usize>(
         alternatives,
         lock_waits,
         saved_map: None,
+    }
+}
+
+/// The map of `graph` as it is now, in the world of the maps that would be written (see
+/// [`MapSnapshot`]), with the `loops` closed so far.
+pub(crate) fn snapshot<const N: usize>(
+    graph: &SlamGraph<N>,
+    store: &KeyframeStore,
+    loops: &[LoopEvent],
+) -> MapSnapshot {
+    let (_, from_world) = graph.written_maps();
+    let keyframes = keyframe_records(graph, &from_world, store);
+    let mut edges = Vec::new();
+    for (k, kf) in graph.keyframes() {
+        if !from_world.contains_key(&kf.map()) {
+            continue;
+        }
+        for (other, edge) in kf.edges() {
+            if k < *other {
+                edges.push((k.index(), other.index(), edge.relative.is_some()));
+            }
+        }
+    }
+    MapSnapshot {
+        points: map_points(graph, &from_world, store),
+        keyframes,
+        edges,
+        loops: loops
+            .iter()
+            .map(|l| (l.keyframe.index(), l.old.index(), l.scale))
+            .collect(),
     }
 }
 

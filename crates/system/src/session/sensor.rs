@@ -8,7 +8,7 @@ use super::backend::{Fault, Stage, Worker};
 use crate::config::SystemConfig;
 use crate::keyframes::{KeyframeReason, KeyframeStore};
 use crate::place_recognition::KeyframeFeatures;
-use crate::result::{LoopEvent, RefusedLoop, Relocalisation, RunGraph, SystemError};
+use crate::result::{LoopEvent, Observed, RefusedLoop, Relocalisation, RunGraph, SystemError};
 use crate::tracker::TrackerStats;
 use data::output::{StageTimings, TrackingState};
 use lie::Sim3;
@@ -40,6 +40,8 @@ pub(crate) struct Step {
     /// An earlier frame (its index) that became a keyframe with this one: a monocular
     /// bootstrap's first frame, a keyframe once the bootstrap succeeds.
     pub earlier_keyframe: Option<(usize, KeyframeId)>,
+    /// The points the front-end looked at (when observing, for a live view).
+    pub observed: Vec<Observed>,
 }
 
 /// How a frame went.
@@ -70,6 +72,7 @@ impl Step {
             time_tracking,
             relocalised: None,
             earlier_keyframe: None,
+            observed: Vec::new(),
         }
     }
 
@@ -89,6 +92,7 @@ impl Step {
             time_tracking: Duration::ZERO,
             relocalised: None,
             earlier_keyframe: None,
+            observed: Vec::new(),
         }
     }
 
