@@ -24,6 +24,7 @@ pub(crate) mod frame;
 pub(crate) mod keyframes;
 pub(crate) mod loops;
 pub(crate) mod mono;
+pub(crate) mod observed;
 pub(crate) mod place_recognition;
 pub(crate) mod run_graph;
 pub(crate) mod search;

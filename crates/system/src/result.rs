@@ -93,40 +93,7 @@ pub struct LoopEvidence {
     pub old_points_predicted: usize,
 }
 
-/// A map point or corner track the front-end looked at in a frame, where it was in the image
-/// and what became of it (a live view colours them; `Options::observe`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Observed {
-    /// Image position (pixels): where it was found, or predicted where it was not.
-    pub uv: [f32; 2],
-    /// What became of it.
-    pub state: ObservedState,
-}
-
-/// What became of an [`Observed`] point.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ObservedState {
-    /// A map point found and kept by the motion-only BA (monocular: a map point's track).
-    Inlier,
-    /// Found, but rejected by the motion-only BA.
-    Outlier,
-    /// Searched for where it was predicted, not found.
-    NotFound,
-    /// A monocular corner track that is not (yet) a map point.
-    Track,
-}
-
-impl ObservedState {
-    /// `"inlier"`, `"outlier"`, `"not found"` or `"track"`.
-    pub fn name(self) -> &'static str {
-        match self {
-            ObservedState::Inlier => "inlier",
-            ObservedState::Outlier => "outlier",
-            ObservedState::NotFound => "not found",
-            ObservedState::Track => "track",
-        }
-    }
-}
+pub use crate::observed::{Observed, ObservedState};
 
 /// What happened to one frame.
 #[derive(Clone, Debug)]
@@ -303,17 +270,6 @@ pub struct MapSnapshot {
     /// The loops closed: the new keyframe, the old one, and the scale drift corrected
     /// (monocular).
     pub loops: Vec<(usize, usize, Option<f64>)>,
-}
-
-impl RunResult {
-    /// The map after the run as a [`MapSnapshot`] (what a live view draws at the end).
-    pub fn snapshot(&self) -> MapSnapshot {
-        use crate::session::outputs::snapshot;
-        match &self.graph {
-            RunGraph::Depth(g) => snapshot(g, &self.keyframes, &self.loops),
-            RunGraph::Mono(g) => snapshot(g, &self.keyframes, &self.loops),
-        }
-    }
 }
 
 /// What the progress bar shows of the map while a run goes on.

@@ -10,7 +10,7 @@
 use crate::config::TrackerConfig;
 use crate::frame::FrameData;
 use crate::keyframes::KeyframeStore;
-use crate::result::{Observed, ObservedState};
+use crate::observed::{Observed, ObservedState};
 use crate::search::{SearchPoint, SearchScratch, predict, search, view_angle};
 use data::output::TrackingState;
 use geom::StereoCamera;

@@ -37,9 +37,10 @@ pub(crate) mod tracks;
 use crate::config::SystemConfig;
 use crate::frame::CornerIndex;
 use crate::keyframes::{KeyframeImages, KeyframeReason, KeyframeStore};
+use crate::observed::{Observed, ObservedState};
 use crate::place_recognition::KeyframeFeatures;
 use crate::place_recognition::features::extract as extract_features;
-use crate::result::{Observed, ObservedState, Relocalisation, RunGraph, SystemError};
+use crate::result::{Relocalisation, RunGraph, SystemError};
 use crate::search::{
     CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX, SearchPoint, SearchScratch, predict, relocate,
     search, view_angle,

@@ -102,6 +102,16 @@ pub(super) fn assemble<const N: usize>(
     }
 }
 
+impl RunResult {
+    /// The map after the run as a [`MapSnapshot`] (what a live view draws at the end).
+    pub fn snapshot(&self) -> MapSnapshot {
+        match &self.graph {
+            RunGraph::Depth(g) => snapshot(g, &self.keyframes, &self.loops),
+            RunGraph::Mono(g) => snapshot(g, &self.keyframes, &self.loops),
+        }
+    }
+}
+
 /// The map of `graph` as it is now, in the world of the maps that would be written (see
 /// [`MapSnapshot`]), with the `loops` closed so far.
 pub(crate) fn snapshot<const N: usize>(

@@ -7,8 +7,9 @@
 use super::backend::{Fault, Stage, Worker};
 use crate::config::SystemConfig;
 use crate::keyframes::{KeyframeReason, KeyframeStore};
+use crate::observed::Observed;
 use crate::place_recognition::KeyframeFeatures;
-use crate::result::{LoopEvent, Observed, RefusedLoop, Relocalisation, RunGraph, SystemError};
+use crate::result::{LoopEvent, RefusedLoop, Relocalisation, RunGraph, SystemError};
 use crate::tracker::TrackerStats;
 use data::output::{StageTimings, TrackingState};
 use lie::Sim3;
