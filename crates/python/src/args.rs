@@ -3,6 +3,7 @@
 
 use crate::errors::{DwslamError, py_err};
 use data::camera::SensorKind;
+use data::sequence::SequenceFormat;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -60,4 +61,22 @@ pub(crate) fn request_err(e: anyhow::Error, request: &SequenceRequest) -> PyErr 
         Some(runner::RequestError::NoFrames) => PyValueError::new_err(format!("max_frames: {e}")),
         None => py_err(e),
     }
+}
+
+/// A sequence format's name (`"tum"`, `"euroc"`, `"kitti"`, `"folder"`), if given.
+pub(crate) fn format_of(format: Option<&str>) -> PyResult<Option<SequenceFormat>> {
+    format
+        .map(str::parse::<SequenceFormat>)
+        .transpose()
+        .map_err(|e| PyValueError::new_err(format!("format: {e}")))
+}
+
+/// `localise=True` needs a map to localise in.
+pub(crate) fn check_localise(localise: bool, load_map: Option<&PathBuf>) -> PyResult<()> {
+    if localise && load_map.is_none() {
+        return Err(PyValueError::new_err(
+            "localise=True needs load_map: a map to localise in",
+        ));
+    }
+    Ok(())
 }

@@ -1,6 +1,6 @@
 //! `dwslam.System`: the live system driven frame by frame from Python.
 
-use crate::args::{config_of, sensor_kind};
+use crate::args::{check_localise, config_of, sensor_kind};
 use crate::arrays::{image_of, intensity, matrix_of, result_dict};
 use crate::camera::{camera_dict, camera_of};
 use crate::errors::{DwslamError, py_err};
@@ -53,11 +53,7 @@ impl System {
     ) -> PyResult<Self> {
         let (sensor, depth) = camera_of(camera, sensor_kind(sensor)?)?;
         let (config, config_text) = config_of(config)?;
-        if localise && load_map.is_none() {
-            return Err(PyValueError::new_err(
-                "localise=True needs load_map: a map to localise in",
-            ));
-        }
+        check_localise(localise, load_map.as_ref())?;
         let mode = if deterministic {
             Mode::Deterministic
         } else {

@@ -1,11 +1,10 @@
 //! `dwslam.run`: `runner::execute` on a recorded sequence, the interpreter released, Ctrl-C
 //! seen between frames.
 
-use crate::args::{config_of, request_err, sensor_kind};
+use crate::args::{check_localise, config_of, format_of, request_err, sensor_kind};
 use crate::arrays::result_dict;
 use crate::errors::{DwslamError, py_err};
-use data::sequence::{Frame, SequenceFormat};
-use pyo3::exceptions::PyValueError;
+use data::sequence::Frame;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use runner::{MapOptions, SequenceRequest, Settings};
@@ -64,18 +63,11 @@ pub(crate) fn run<'py>(
     quiet: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (config, config_text) = config_of(config)?;
-    if localise && load_map.is_none() {
-        return Err(PyValueError::new_err(
-            "localise=True needs load_map: a map to localise in",
-        ));
-    }
+    check_localise(localise, load_map.as_ref())?;
     let request = SequenceRequest {
         path,
         sensor: sensor_kind(sensor)?,
-        format: format
-            .map(str::parse::<SequenceFormat>)
-            .transpose()
-            .map_err(|e| PyValueError::new_err(format!("format: {e}")))?,
+        format: format_of(format)?,
         camera,
         skip_bad_frames,
         depth_frames_only,

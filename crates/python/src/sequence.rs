@@ -1,12 +1,11 @@
 //! `dwslam.Sequence`: a recorded sequence's frames as numpy arrays.
 
-use crate::args::{request_err, sensor_kind};
+use crate::args::{format_of, request_err, sensor_kind};
 use crate::arrays::{matrix_of, trajectory_tuple};
 use crate::camera::camera_dict;
 use crate::errors::py_err;
-use data::sequence::{FrameImages, SequenceFormat};
+use data::sequence::FrameImages;
 use numpy::{PyArray1, PyArrayMethods};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use runner::SequenceRequest;
@@ -37,10 +36,7 @@ impl Sequence {
         let request = SequenceRequest {
             path,
             sensor: sensor_kind(sensor)?,
-            format: format
-                .map(str::parse::<SequenceFormat>)
-                .transpose()
-                .map_err(|e| PyValueError::new_err(format!("format: {e}")))?,
+            format: format_of(format)?,
             camera,
             skip_bad_frames: false,
             depth_frames_only,
