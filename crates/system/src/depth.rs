@@ -14,7 +14,7 @@
 
 use crate::association::KeyframeAssociation;
 use crate::config::SystemConfig;
-use crate::frame::{FrameData, SensorFrontEnd, pixel_depth};
+use crate::frame::{FrameData, SensorFrontEnd};
 use crate::keyframes::{KeyframeReason, keyframe_reason, nearest_keyframe};
 use crate::loops::{LoopCloser, LoopJob};
 use crate::place_recognition::{
@@ -261,6 +261,13 @@ impl DepthSensor {
         tracked_against: Option<(KeyframeId, Sim3, slam::map::Version)>,
         new_map: bool,
     ) -> Result<(KeyframeId, usize), SystemError> {
+        // The dense model's depth image (`--dense-ply`): with sparse stereo block-matched for
+        // the keyframe alone.
+        let keyframe_depth = if self.keep_depth {
+            self.front.keyframe_depth(frame)?
+        } else {
+            None
+        };
         let store_lock = ctx.store.clone();
         let store = read_lock(&store_lock);
         let min_disparity = self.mapper.config().min_disparity;
@@ -277,8 +284,8 @@ impl DepthSensor {
         association.tracked_against = tracked_against;
         association.new_map = new_map;
         let mut images = association.images();
-        if !self.keep_depth {
-            images.depth = None;
+        if frame.right.is_some() || !self.keep_depth {
+            images.depth = keyframe_depth;
         }
         // The stages of the keyframe pipeline, each under the graph's lock for as short as it
         // can (`slam::mapping::Mapper::map_keyframe`; the optimisation is not among them).
@@ -399,10 +406,9 @@ impl DepthSensor {
     /// [`verify::verify_absolute`]: crate::place_recognition::verify::verify_absolute
     fn find(&mut self, ctx: &mut Ctx, frame: &Arc<FrameData>) -> Option<(Tracked, Relocalisation)> {
         let (database, config) = self.relocaliser.as_ref()?;
-        let depth = frame.depth.as_ref();
         let features = features::extract(
             frame.gray(),
-            |u, v| depth.and_then(|d| pixel_depth(d, u, v)),
+            |u, v| frame.keypoint_depth(u, v, config.depth_edge_ratio),
             Vec::new(),
             self.front.pinhole(),
             config,
@@ -616,6 +622,7 @@ impl Sensor<3> for DepthSensor {
             .corners()
             .iter()
             .filter(|c| frame.depth_at(c.u as f64, c.v as f64).is_some())
+            .take(ctx.config.tracker.min_good)
             .count();
         if with_depth < ctx.config.tracker.min_good {
             return Ok(None);

@@ -1,8 +1,10 @@
 //! Sensor front-ends (thesis §6.3, §6.5.3): a frame from the reader becomes what tracking
-//! needs — the grey image's pyramid, its FAST corners indexed by position, and per-pixel depth
-//! (from stereo block matching, or from the depth camera: RGB-D as a virtual stereo camera).
+//! needs — the grey image's pyramid, its FAST corners indexed by position, and depth: from the
+//! depth camera (RGB-D as a virtual stereo camera), or from the stereo pair, measured at the
+//! points the system asks for (sparse stereo, `vision::stereo::sparse`; the default) or read
+//! from a block-matched disparity image (`stereo.matching: dense`).
 
-use crate::config::SystemConfig;
+use crate::config::{StereoMatching, SystemConfig};
 use data::camera::SensorModel;
 use data::sequence::{Frame, FrameImages, RgbPlanes};
 use geom::{PinholeCamera, StereoCamera};
@@ -11,7 +13,10 @@ use nalgebra::{Vector2, Vector3};
 use vision::fast::{Corner, fast9_level};
 use vision::image::{GrayImage, Image, ImageError};
 use vision::pyramid::{Pyramid, half_sample};
-use vision::stereo::{StereoMatcher, StereoParams, disparity_to_depth, point_disparity};
+use vision::stereo::{
+    SparseParams, StereoMatcher, StereoParams, disparity_to_depth, point_block_disparity,
+    point_disparity,
+};
 
 /// Why a frame could not be prepared.
 #[derive(Debug, thiserror::Error)]
@@ -168,13 +173,18 @@ pub struct FrameData {
     /// FAST corners of level 0.
     pub corners: CornerIndex,
     /// Depth per pixel of level 0 in metres (`NaN` where unknown); `None` for frames without
-    /// depth (an RGB-D frame whose depth image is missing).
+    /// depth (an RGB-D frame whose depth image is missing). With sparse stereo
+    /// ([`FrameData::sparse`]) a coarse block-matched map, for tracking's dense prior only:
+    /// the points' depths are measured at the points.
     pub depth: Option<Image<f32>>,
     /// Colour planes, where the images have colour.
     pub colour: Option<RgbPlanes>,
     /// The right image of a stereo pair (level 0), where each point's disparity is measured
     /// ([`FrameData::stereo_measurement`]); `None` for RGB-D frames.
     pub right: Option<GrayImage>,
+    /// Sparse stereo: each point's disparity searched along its row of the right image
+    /// ([`point_block_disparity`]) instead of read from [`FrameData::depth`].
+    pub sparse: Option<SparseStereo>,
     /// Ground truth `world_from_camera`, if the dataset has it.
     pub ground_truth: Option<Se3>,
 }
@@ -185,13 +195,20 @@ impl FrameData {
         &self.pyramid.levels[0]
     }
 
-    /// The depth (metres) at pixel `(u, v)`: the nearest pixel's, if the valid depths of its
-    /// 5×5 neighbourhood agree with it to [`DEPTH_AGREEMENT`] ([`depth_off_edges`]). Corners lie on
-    /// object boundaries more often than not, where a depth image (or a disparity map's
-    /// blocks) mixes the foreground with the background, and where a depth camera not
-    /// registered to the colour camera puts the wrong surface's depth: a point gets its depth
-    /// only where the surface around it is smooth.
+    /// The depth (metres) at pixel `(u, v)`, off depth edges. From a depth image: the nearest
+    /// pixel's, if the valid depths of its 5×5 neighbourhood agree with it to
+    /// [`DEPTH_AGREEMENT`] ([`depth_off_edges`]). Corners lie on object boundaries more often
+    /// than not, where a depth image (or a disparity map's blocks) mixes the foreground with the
+    /// background, and where a depth camera not registered to the colour camera puts the wrong
+    /// surface's depth: a point gets its depth only where the surface around it is smooth.
+    /// With sparse stereo: the block disparity searched at the nearest pixel, whose shifted
+    /// blocks must agree to [`DEPTH_AGREEMENT`] (`vision::stereo::sparse`, the same test on the
+    /// blocks themselves).
     pub fn depth_at(&self, u: f64, v: f64) -> Option<f64> {
+        if let Some(sparse) = &self.sparse {
+            let d = self.block_disparity(sparse, u, v)?;
+            return (d > 0.0).then(|| sparse.focal_baseline / d as f64);
+        }
         let d = self.depth.as_ref()?;
         depth_off_edges(
             &|x, y| pixel_depth(d, x, y),
@@ -202,37 +219,79 @@ impl FrameData {
         )
     }
 
+    /// The depth at a keypoint of place recognition (ORB): from a depth image, the nearest
+    /// pixel's if its 3×3 neighbours agree to `edge_ratio`; with sparse stereo the block
+    /// disparity with the same tolerance, its blocks shifted by one pixel (the 3×3
+    /// neighbourhood's analogue).
+    pub fn keypoint_depth(&self, u: f64, v: f64, edge_ratio: f64) -> Option<f64> {
+        if let Some(sparse) = &self.sparse {
+            let looser = SparseStereo {
+                params: SparseParams {
+                    shift: 1,
+                    agreement: edge_ratio as f32,
+                    ..sparse.params
+                },
+                ..*sparse
+            };
+            let d = self.block_disparity(&looser, u, v)?;
+            return (d > 0.0).then(|| sparse.focal_baseline / d as f64);
+        }
+        let d = self.depth.as_ref()?;
+        depth_off_edges(&|x, y| pixel_depth(d, x, y), u, v, 1, edge_ratio)
+    }
+
+    /// The block disparity at the pixel nearest `(u, v)` (sparse stereo).
+    fn block_disparity(&self, sparse: &SparseStereo, u: f64, v: f64) -> Option<f32> {
+        let right = self.right.as_ref()?;
+        if !(u.is_finite() && v.is_finite()) || u < -0.5 || v < -0.5 {
+            return None;
+        }
+        let (x, y) = ((u + 0.5) as usize, (v + 0.5) as usize);
+        point_block_disparity(self.gray(), right, x, y, &sparse.params)
+    }
+
     /// The stereo measurement `(u, v, u_r)` of pixel `u` with `camera`, where the frame has a
     /// depth there ([`FrameData::depth_at`]). For a stereo pair the disparity is then measured
     /// at the point itself ([`point_disparity`]: the left image's 8×8 patch around `u` aligned
-    /// along the row of the right image, the disparity map's value as the start), the patch
-    /// the tracker matches in the left image: both coordinates measure the same feature.
+    /// along the row of the right image, the block disparity as the start), the patch the
+    /// tracker matches in the left image: both coordinates measure the same feature.
     ///
-    /// Why not the disparity map's value: block matching aggregates a 7×7 census over 9×9
-    /// blocks at the nearest pixel, and a corner lies on an object's boundary more often than
-    /// not, where that support takes in the surface behind. `None` where the patch does not
-    /// align within [`POINT_DISPARITY_MAX_STEP`] of the map's disparity (the two supports see
-    /// different surfaces).
+    /// Why not the block disparity itself: block matching sums a 9×9 block at the nearest
+    /// pixel (the dense map: a 7×7 census over 9×9 blocks), and a corner lies on an object's
+    /// boundary more often than not, where that support takes in the surface behind. `None`
+    /// where the patch does not align within [`POINT_DISPARITY_MAX_STEP`] of the block's
+    /// disparity (the two supports see different surfaces).
     pub fn stereo_measurement(
         &self,
         u: Vector2<f64>,
         camera: &StereoCamera,
     ) -> Option<Vector3<f64>> {
-        let z = self.depth_at(u.x, u.y)?;
-        let d = camera.pinhole.fx * camera.baseline / z;
+        let start = match &self.sparse {
+            Some(sparse) => self.block_disparity(sparse, u.x, u.y)? as f64,
+            None => camera.pinhole.fx * camera.baseline / self.depth_at(u.x, u.y)?,
+        };
         let d = match &self.right {
             Some(right) => point_disparity(
                 self.gray(),
                 right,
                 u.x as f32,
                 u.y as f32,
-                d as f32,
+                start as f32,
                 POINT_DISPARITY_MAX_STEP,
             )? as f64,
-            None => d,
+            None => start,
         };
         Some(Vector3::new(u.x, u.y, u.x - d))
     }
+}
+
+/// Sparse stereo's parameters ([`FrameData::sparse`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SparseStereo {
+    /// The search (`vision::stereo::sparse`).
+    pub params: SparseParams,
+    /// `f·b` (pixels · metres): depth = `f·b / disparity`.
+    pub focal_baseline: f64,
 }
 
 /// Largest change of a point's disparity from the disparity map's (pixels): the block
@@ -245,12 +304,21 @@ pub const POINT_DISPARITY_MAX_STEP: f32 = 1.0;
 pub struct SensorFrontEnd {
     camera: StereoCamera,
     kind: DepthSource,
-    /// Block matching with its buffers kept from frame to frame.
+    /// Block matching of the disparity image with its buffers kept from frame to frame: the
+    /// points' depths with `stereo.matching: dense`, the dense prior's coarse map with sparse
+    /// stereo.
     stereo: StereoMatcher,
     /// The pyramid level block matching runs at.
     stereo_level: usize,
     /// Its threads (horizontal bands).
     stereo_threads: usize,
+    /// Sparse stereo (the points' disparities searched at the points), if chosen.
+    sparse: Option<SparseStereo>,
+    /// Full-resolution block matching for keyframes' depth images (the dense model) with sparse
+    /// stereo; made when first needed.
+    keyframe_matcher: Option<Box<StereoMatcher>>,
+    /// Block matching's parameters at full resolution.
+    full_params: StereoParams,
     fast_threshold: u8,
     levels: usize,
 }
@@ -275,20 +343,41 @@ impl SensorFrontEnd {
                 });
             }
         };
+        let full_params = StereoParams {
+            max_disparity: config.stereo.max_disparity_for(camera.pinhole.fx),
+            block_radius: config.stereo.block_radius,
+            ..StereoParams::default()
+        };
+        let sparse = (kind == DepthSource::BlockMatching
+            && config.stereo.matching == StereoMatching::Sparse)
+            .then_some(SparseStereo {
+                params: SparseParams {
+                    max_disparity: full_params.max_disparity,
+                    block_radius: config.stereo.block_radius,
+                    ..SparseParams::default()
+                },
+                focal_baseline: camera.pinhole.fx * camera.baseline,
+            });
+        // With sparse stereo the disparity image is the dense prior's alone, which aligns
+        // images from `tracker.dense_finest_level` up: matched at that level (KITTI at level 2:
+        // 1/16 of the pixels over 1/4 of the disparities).
+        let stereo_level = match sparse {
+            Some(_) => config.tracker.dense_finest_level,
+            None => config.stereo.level,
+        };
         Ok(SensorFrontEnd {
             camera,
             kind,
-            stereo_level: config.stereo.level,
+            stereo_level,
             stereo_threads: config.stereo.threads(),
             stereo: StereoMatcher::new(StereoParams {
                 // The same depth range at every level: the full-resolution disparities scaled.
-                max_disparity: config
-                    .stereo
-                    .max_disparity_for(camera.pinhole.fx)
-                    .div_ceil(1 << config.stereo.level),
-                block_radius: config.stereo.block_radius,
-                ..StereoParams::default()
+                max_disparity: full_params.max_disparity.div_ceil(1 << stereo_level),
+                ..full_params
             }),
+            sparse,
+            keyframe_matcher: None,
+            full_params,
             fast_threshold: config.tracker.fast_threshold,
             levels: config.tracker.pyramid_levels,
         })
@@ -346,7 +435,29 @@ impl SensorFrontEnd {
         Ok(depth)
     }
 
-    /// Prepares a frame: pyramid, FAST corners, depth.
+    /// The full-resolution depth image of a stereo frame, for a keyframe's dense model: the
+    /// frame's own map with `stereo.matching: dense` at level 0, else block-matched now. `None`
+    /// for RGB-D frames (their depth image is the frame's).
+    pub fn keyframe_depth(&mut self, frame: &FrameData) -> Result<Option<Image<f32>>, FrameError> {
+        let Some(right) = &frame.right else {
+            return Ok(None);
+        };
+        if self.sparse.is_none() && self.stereo_level == 0 {
+            return Ok(frame.depth.clone());
+        }
+        let matcher = self
+            .keyframe_matcher
+            .get_or_insert_with(|| Box::new(StereoMatcher::new(self.full_params)));
+        let disparity = matcher.compute_in_bands(frame.gray(), right, self.stereo_threads)?;
+        Ok(Some(disparity_to_depth(
+            &disparity,
+            self.camera.pinhole.fx,
+            self.camera.baseline,
+        )))
+    }
+
+    /// Prepares a frame: pyramid, FAST corners, depth (with sparse stereo the dense prior's
+    /// coarse map only).
     pub fn prepare(&mut self, frame: Frame) -> Result<FrameData, FrameError> {
         let Frame {
             index,
@@ -399,6 +510,7 @@ impl SensorFrontEnd {
             depth,
             colour,
             right,
+            sparse: self.sparse,
             ground_truth: world_from_camera,
         })
     }
@@ -430,7 +542,8 @@ mod tests {
     /// A rectified pair of a slanted textured plane, disparity `4 + 0.05·u` (6–11 px): the depth
     /// block-matched at level 0 and at level 1 (upsampled) both give each corner's depth, and
     /// every point's stereo measurement, refined on its own patch, gives its disparity to a
-    /// small fraction of a pixel from either map.
+    /// small fraction of a pixel from either map; so does sparse stereo (its block disparities
+    /// the start, the frame's depth image the dense prior's coarse map).
     #[test]
     fn stereo_depth_at_level_one_matches_level_zero() {
         use data::sequence::Frame;
@@ -456,8 +569,13 @@ mod tests {
             world_from_camera: None,
         };
         let mut measured = Vec::new();
-        for level in [0, 1] {
+        for (matching, level) in [
+            (StereoMatching::Dense, 0),
+            (StereoMatching::Dense, 1),
+            (StereoMatching::Sparse, 0),
+        ] {
             let mut config = SystemConfig::default();
+            config.stereo.matching = matching;
             config.stereo.level = level;
             config.stereo.max_disparity = Some(32);
             let mut front = SensorFrontEnd::new(&SensorModel::Stereo(camera), &config).unwrap();
@@ -480,7 +598,7 @@ mod tests {
             let rms = |e: &[f64]| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
             let (map, point) = (rms(&e_map), rms(&e_point));
             println!(
-                "level {level}: {} / {} corners with a map / point disparity, RMS error {map:.3} / {point:.3} px",
+                "{matching:?} level {level}: {} / {} corners with a block / point disparity, RMS error {map:.3} / {point:.3} px",
                 e_map.len(),
                 e_point.len()
             );

@@ -29,7 +29,7 @@
 
 use crate::association::{GuidedSearch, search_points};
 use crate::config::SystemConfig;
-use crate::frame::{FrameData, SensorFrontEnd, pixel_depth};
+use crate::frame::{FrameData, SensorFrontEnd};
 use crate::keyframes::KeyframeStore;
 use crate::place_recognition::{
     LoopCandidate, PlaceRecognition, PlaceRecognitionConfig, PlaceRecognitionError, features,
@@ -194,7 +194,8 @@ impl LoopCloser {
     ) -> Result<Option<AppearanceLoop>, LoopError> {
         let t = Instant::now();
         let frame = &job.frame;
-        let depth = |u, v| frame.depth.as_ref().and_then(|d| pixel_depth(d, u, v));
+        let edge_ratio = self.place.depth_edge_ratio;
+        let depth = |u, v| frame.keypoint_depth(u, v, edge_ratio);
         let features = features::extract(
             frame.gray(),
             depth,

@@ -75,9 +75,10 @@ impl Default for Options {
 /// initialisation) and whether the map's scale is free.
 pub struct System(Inner);
 
+/// The session of the run's sensor (boxed: sessions are kilobytes, and of different sizes).
 enum Inner {
-    Depth(Session<DepthSensor, 3>),
-    Mono(Session<MonoSensor, 2>),
+    Depth(Box<Session<DepthSensor, 3>>),
+    Mono(Box<Session<MonoSensor, 2>>),
 }
 
 impl System {
@@ -157,7 +158,7 @@ impl System {
                 if let Some(map) = &options.load_map {
                     session.restore(map.features.clone(), options.localise)?;
                 }
-                Inner::Mono(session)
+                Inner::Mono(Box::new(session))
             }
             SensorModel::Stereo(_) | SensorModel::Rgbd(_) => {
                 let graph = match options.load_map.as_deref() {
@@ -212,7 +213,7 @@ impl System {
                 if let Some(map) = &options.load_map {
                     session.restore(map.features.clone(), options.localise)?;
                 }
-                Inner::Depth(session)
+                Inner::Depth(Box::new(session))
             }
         }))
     }

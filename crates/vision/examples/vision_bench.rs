@@ -165,6 +165,42 @@ fn main() {
                 serde_json::json!({"ms": ms, "width": d.width(), "height": d.height()})
             );
         }
+        "sparse" => {
+            // Sparse stereo at the FAST corners of the left image: time per point, and how many
+            // get a disparity (also with the point's own patch refinement, as the live system).
+            let l = load_gray_u8(arg(2)).expect("left");
+            let r = load_gray_u8(arg(3)).expect("right");
+            let params = vision::stereo::SparseParams {
+                max_disparity: arg(4).parse().expect("maxdisp"),
+                ..Default::default()
+            };
+            let corners = vision::fast::fast9(&l, 20, true);
+            let (ms, found) = time_ms(3, || {
+                corners
+                    .iter()
+                    .filter_map(|c| {
+                        let (x, y) = ((c.u + 0.5) as usize, (c.v + 0.5) as usize);
+                        vision::stereo::point_block_disparity(&l, &r, x, y, &params)
+                    })
+                    .count()
+            });
+            let (ms_refined, refined) = time_ms(3, || {
+                corners
+                    .iter()
+                    .filter_map(|c| {
+                        let (x, y) = ((c.u + 0.5) as usize, (c.v + 0.5) as usize);
+                        let d = vision::stereo::point_block_disparity(&l, &r, x, y, &params)?;
+                        vision::stereo::point_disparity(&l, &r, c.u, c.v, d, 1.0)
+                    })
+                    .count()
+            });
+            println!(
+                "{}",
+                serde_json::json!({"ms": ms, "points": corners.len(), "measured": found,
+                    "us_per_point": 1e3 * ms / corners.len() as f64,
+                    "ms_refined": ms_refined, "refined": refined})
+            );
+        }
         "tvl1" => {
             let i0 = load_gray_u8(arg(2)).expect("image 0");
             let i1 = load_gray_u8(arg(3)).expect("image 1");

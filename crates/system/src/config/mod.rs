@@ -580,7 +580,8 @@ pub struct StereoConfig {
     pub max_disparity: Option<usize>,
     /// Block radius (the block is `(2r+1)²`).
     pub block_radius: usize,
-    /// The pyramid level the block matching runs at (0: full resolution). The disparity map is
+    /// With `matching: dense`, the pyramid level the block matching runs at (0: full
+    /// resolution). The disparity map is
     /// the start of each point's own disparity measurement (`vision::stereo::point_disparity`,
     /// at full resolution) and the depth of the dense prior (level 2 and coarser), so a coarser
     /// map costs little accuracy and saves most of a stereo frame's time: level 1 matches a
@@ -590,6 +591,14 @@ pub struct StereoConfig {
     /// defaults' measurements"). The points' own measurements are as accurate at either level
     /// (`tests/stereo_rendered.rs`); which corners get one differs.
     pub level: usize,
+    /// How the points' disparities are found: `sparse` searches each point's own row of the
+    /// right image (`vision::stereo::sparse`; ORB-SLAM3 likewise matches its keypoints only),
+    /// `dense` block-matches every pixel at `level` and reads the map at the point. Either way
+    /// the measurement is the point's own patch aligned along the row from there. Sparse by
+    /// default: the same measurements for a fraction of a frame's time (bench/README.md,
+    /// "Sparse stereo"); the dense prior then uses a disparity image matched at
+    /// `tracker.dense_finest_level`, and `--dense-ply` block-matches the keyframes alone.
+    pub matching: StereoMatching,
     /// Threads block matching runs on, each on a horizontal band of the image (the same
     /// disparities bit for bit: `vision::stereo::StereoMatcher::compute_in_bands`); `None`: the
     /// cores this process may run on (one under `taskset -c N`, as in `bench/live`).
@@ -604,9 +613,20 @@ impl Default for StereoConfig {
             max_disparity: None,
             block_radius: 4,
             level: 0,
+            matching: StereoMatching::Sparse,
             threads: None,
         }
     }
+}
+
+/// How stereo finds the points' disparities ([`StereoConfig::matching`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StereoMatching {
+    /// Each point searched along its row.
+    Sparse,
+    /// A disparity image of every pixel.
+    Dense,
 }
 
 impl StereoConfig {

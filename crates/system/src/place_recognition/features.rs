@@ -4,7 +4,6 @@
 //! (thesis §5.3.1).
 
 use super::types::{PlaceRecognitionConfig, PlaceRecognitionError};
-use crate::frame::depth_off_edges;
 use geom::PinholeCamera;
 use nalgebra::{Vector2, Vector3};
 use vision::image::GrayImage;
@@ -34,12 +33,15 @@ impl KeyframeFeatures {
 }
 
 /// Extracts a keyframe's features: ORB keypoints and descriptors of `image`, each keypoint
-/// back-projected through `camera` at its depth (see [`depth_off_edges`]) where `depth`
-/// (metres at pixel `(u, v)`, `None` where unknown) has one. A monocular keyframe passes
-/// `|_, _| None` and gives its map points' depths as `depth_samples`.
+/// back-projected through `camera` at its depth where `depth` (metres at the keypoint `(u, v)`,
+/// off depth edges: [`FrameData::keypoint_depth`], [`off_edges`] for a depth image; `None`
+/// where unknown) has one. A monocular keyframe passes `|_, _| None` and gives its map points'
+/// depths as `depth_samples`.
+///
+/// [`FrameData::keypoint_depth`]: crate::frame::FrameData::keypoint_depth
 pub fn extract(
     image: &GrayImage,
-    depth: impl Fn(usize, usize) -> Option<f64>,
+    depth: impl Fn(f64, f64) -> Option<f64>,
     depth_samples: Vec<(Vector2<f64>, f64)>,
     camera: &PinholeCamera,
     config: &PlaceRecognitionConfig,
@@ -50,7 +52,7 @@ pub fn extract(
         .iter()
         .map(|kp| {
             let (u, v) = (kp.u as f64, kp.v as f64);
-            let d = depth_off_edges(&depth, u, v, 1, config.depth_edge_ratio)?;
+            let d = depth(u, v)?;
             camera.unproject_depth(&Vector2::new(u, v), d).ok()
         })
         .collect();
@@ -61,4 +63,14 @@ pub fn extract(
         depth_samples,
         camera: *camera,
     })
+}
+
+#[cfg(test)]
+/// The keypoint depth of [`extract`] from per-pixel depths `depth(u, v)` (metres): the nearest
+/// pixel's where its 3×3 neighbours agree to `edge_ratio` ([`crate::frame::depth_off_edges`]).
+pub fn off_edges(
+    depth: impl Fn(usize, usize) -> Option<f64>,
+    edge_ratio: f64,
+) -> impl Fn(f64, f64) -> Option<f64> {
+    move |u, v| crate::frame::depth_off_edges(&depth, u, v, 1, edge_ratio)
 }

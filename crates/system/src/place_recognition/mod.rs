@@ -131,6 +131,7 @@ impl PlaceRecognition {
         if self.keyframes.contains_key(&id) {
             return Err(PlaceRecognitionError::Duplicate(id));
         }
+        let depth = features::off_edges(depth, self.config.depth_edge_ratio);
         let f = features::extract(image, depth, Vec::new(), camera, &self.config)?;
         let n = f.with_depth();
         self.insert(id, f)?;

@@ -563,7 +563,7 @@ fn a_lost_frame_is_found_among_the_keyframes_at_its_true_pose() {
         let (image, depth, world_from_camera) = read_rgbd(&seq, index);
         let f = features::extract(
             &image,
-            |u, v| depth.metres_at(u, v),
+            features::off_edges(|u, v| depth.metres_at(u, v), config.depth_edge_ratio),
             Vec::new(),
             &camera,
             &config,

@@ -17,8 +17,10 @@ mod avx512;
 mod matcher;
 mod median;
 mod row;
+pub mod sparse;
 
 pub use matcher::{StereoMatcher, block_match};
+pub use sparse::{SparseParams, point_block_disparity};
 
 use crate::image::{GrayImage, Image, ImageError};
 use crate::patch::{refine_along_row, template_with_gradient};
