@@ -261,8 +261,8 @@ impl DepthSensor {
         tracked_against: Option<(KeyframeId, Sim3, slam::map::Version)>,
         new_map: bool,
     ) -> Result<(KeyframeId, usize), SystemError> {
-        // The dense model's depth image (`--dense-ply`): with sparse stereo block-matched for
-        // the keyframe alone.
+        // The dense model's depth image (`--dense-ply`; with sparse stereo block-matched for the
+        // keyframe alone), kept only then.
         let keyframe_depth = if self.keep_depth {
             self.front.keyframe_depth(frame)?
         } else {
@@ -284,9 +284,7 @@ impl DepthSensor {
         association.tracked_against = tracked_against;
         association.new_map = new_map;
         let mut images = association.images();
-        if frame.right.is_some() || !self.keep_depth {
-            images.depth = keyframe_depth;
-        }
+        images.depth = keyframe_depth;
         // The stages of the keyframe pipeline, each under the graph's lock for as short as it
         // can (`slam::mapping::Mapper::map_keyframe`; the optimisation is not among them).
         let report = self

@@ -202,12 +202,11 @@ impl FrameData {
     /// background, and where a depth camera not registered to the colour camera puts the wrong
     /// surface's depth: a point gets its depth only where the surface around it is smooth.
     /// With sparse stereo: the block disparity searched at the nearest pixel, whose shifted
-    /// blocks must agree to [`DEPTH_AGREEMENT`] (`vision::stereo::sparse`, the same test on the
-    /// blocks themselves).
+    /// blocks must agree with it (`vision::stereo::SparseParams::agreement`, the same 3 %, or
+    /// a quarter pixel: the same test on the blocks themselves).
     pub fn depth_at(&self, u: f64, v: f64) -> Option<f64> {
         if let Some(sparse) = &self.sparse {
-            let d = self.block_disparity(sparse, u, v)?;
-            return (d > 0.0).then(|| sparse.focal_baseline / d as f64);
+            return self.block_depth(sparse, u, v);
         }
         let d = self.depth.as_ref()?;
         depth_off_edges(
@@ -233,11 +232,16 @@ impl FrameData {
                 },
                 ..*sparse
             };
-            let d = self.block_disparity(&looser, u, v)?;
-            return (d > 0.0).then(|| sparse.focal_baseline / d as f64);
+            return self.block_depth(&looser, u, v);
         }
         let d = self.depth.as_ref()?;
         depth_off_edges(&|x, y| pixel_depth(d, x, y), u, v, 1, edge_ratio)
+    }
+
+    /// The depth of [`FrameData::block_disparity`].
+    fn block_depth(&self, sparse: &SparseStereo, u: f64, v: f64) -> Option<f64> {
+        let d = self.block_disparity(sparse, u, v)?;
+        (d > 0.0).then(|| sparse.focal_baseline / d as f64)
     }
 
     /// The block disparity at the pixel nearest `(u, v)` (sparse stereo).
@@ -435,16 +439,18 @@ impl SensorFrontEnd {
         Ok(depth)
     }
 
-    /// The full-resolution depth image of a stereo frame, for a keyframe's dense model: the
-    /// frame's own map with `stereo.matching: dense` at level 0, else block-matched now. `None`
-    /// for RGB-D frames (their depth image is the frame's).
+    /// The full-resolution depth image of a keyframe, for the dense model: an RGB-D frame's
+    /// depth image, the frame's own map with `stereo.matching: dense` at level 0, else
+    /// block-matched now.
     pub fn keyframe_depth(&mut self, frame: &FrameData) -> Result<Option<Image<f32>>, FrameError> {
-        let Some(right) = &frame.right else {
-            return Ok(None);
-        };
-        if self.sparse.is_none() && self.stereo_level == 0 {
+        let Some(right) = frame
+            .right
+            .as_ref()
+            .filter(|_| self.sparse.is_some() || self.stereo_level > 0)
+        else {
+            // The depth camera's image, or the full-resolution disparity map's depth.
             return Ok(frame.depth.clone());
-        }
+        };
         let matcher = self
             .keyframe_matcher
             .get_or_insert_with(|| Box::new(StereoMatcher::new(self.full_params)));

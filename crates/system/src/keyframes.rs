@@ -27,13 +27,14 @@ pub struct KeyframeImages {
 }
 
 impl KeyframeImages {
-    /// The keyframe's images from its frame.
+    /// The keyframe's images from its frame, without depth: a keyframe keeps a depth image
+    /// only for the dense model (`SensorFrontEnd::keyframe_depth`, set by the caller).
     pub fn from_frame(frame: &FrameData) -> Self {
         KeyframeImages {
             frame_index: frame.index,
             timestamp: frame.timestamp,
             gray: frame.gray().clone(),
-            depth: frame.depth.clone(),
+            depth: None,
             colour: frame.colour.clone(),
         }
     }
