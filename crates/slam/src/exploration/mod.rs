@@ -74,8 +74,11 @@ pub struct ExplorationConfig {
     /// Keyframes in the sliding BA window (thesis §5.4: 10).
     pub window: usize,
     /// A keyframe when the distance from the last keyframe exceeds this fraction of the median
-    /// scene depth.
+    /// scene depth ([`KeyframeBaseline::Distance`]), or the median parallax of the tracked
+    /// points exceeds this many radians ([`KeyframeBaseline::Parallax`]).
     pub keyframe_distance: f64,
+    /// How a keyframe's baseline to the current view is measured against `keyframe_distance`.
+    pub keyframe_baseline: KeyframeBaseline,
     /// A keyframe also when fewer map points than this are tracked.
     pub min_tracked_for_keyframe: usize,
     /// `Some(angle)` (radians): a keyframe only where no nearby keyframe covers the view —
@@ -150,6 +153,24 @@ pub struct ExplorationConfig {
     pub remove_outliers: bool,
 }
 
+/// How [`MonoExplorer`] measures the baseline between a keyframe and the current view, against
+/// [`ExplorationConfig::keyframe_distance`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeyframeBaseline {
+    /// The distance between the camera centres over the median scene depth (thesis §3.3.3): the
+    /// parallax a point straight ahead of a camera moving sideways would have.
+    Distance,
+    /// The median, over the tracked map points, of the angle between the rays from the two
+    /// camera centres to the point (radians): the parallax a new point triangulated between
+    /// the two views would have — what a keyframe is for (thesis §6.2.6, "the incremental
+    /// translation/parallax"). Equal to [`Distance`](Self::Distance) for a camera moving
+    /// sideways; for one moving forward it is the smaller by the sine of the angle between
+    /// the motion and the rays (points near the direction of travel gain no parallax), so a
+    /// car driving down a road makes a keyframe when the road's points have moved in its
+    /// images, not every few metres.
+    Parallax,
+}
+
 /// Which keyframes the keyframe BA of [`MonoExplorer`] optimises.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LocalWindow {
@@ -171,6 +192,7 @@ impl Default for ExplorationConfig {
             sigma: 1.0,
             window: 10,
             keyframe_distance: 0.05,
+            keyframe_baseline: KeyframeBaseline::Distance,
             min_tracked_for_keyframe: 30,
             keyframe_rotation: None,
             keyframe_min_tracked_fraction: 0.5,
@@ -850,17 +872,20 @@ impl MonoExplorer {
         }
         let pose = self.motion_only(graph, predicted, &tracked)?;
         let new_velocity = Se3::exp(&(pose.compose(&last_pose.inverse()).log() / steps));
-        // 2. Keyframe decision by distance relative to the median scene depth.
-        let mut depths: Vec<f64> = tracked
+        // 2. Keyframe decision by the baseline relative to the scene depth.
+        let world: Vec<Vector3<f64>> = tracked
             .iter()
             .filter_map(|(p, _)| graph.point_world(*p).ok())
-            .map(|y| pose.act(&y).z)
+            .collect();
+        let mut depths: Vec<f64> = world
+            .iter()
+            .map(|y| pose.act(y).z)
             .filter(|d| *d > 0.0)
             .collect();
         let median_depth = median(&mut depths).unwrap_or(1.0);
         let last_kf = KeyframeId::from_index(self.map.keyframes.len() - 1);
         let is_keyframe = !self.localise
-            && (self.view_uncovered(graph, &pose, last_kf, &tracked, median_depth)
+            && (self.view_uncovered(graph, &pose, last_kf, &tracked, &world, median_depth)
                 || tracked.len() < self.config.min_tracked_for_keyframe);
         let keyframe = is_keyframe.then(|| {
             let k = self.map.add_keyframe(graph, frame, pose, measurements);
@@ -944,12 +969,24 @@ impl MonoExplorer {
         pose: &Se3,
         last: KeyframeId,
         tracked: &[(PointId, Vector2<f64>)],
+        world: &[Vector3<f64>],
         median_depth: f64,
     ) -> bool {
         let depth = median_depth.max(1e-9);
-        let distance = |k: KeyframeId| {
-            (centre(pose) - centre(&rigid_pose(graph, k))).norm()
-                / (self.config.keyframe_distance * depth)
+        let here = centre(pose);
+        // The baseline to keyframe `k` in units of `keyframe_distance`.
+        let mut angles = Vec::with_capacity(world.len());
+        let mut distance = |k: KeyframeId| {
+            let there = centre(&rigid_pose(graph, k));
+            let baseline = match self.config.keyframe_baseline {
+                KeyframeBaseline::Distance => (here - there).norm() / depth,
+                KeyframeBaseline::Parallax => {
+                    angles.clear();
+                    angles.extend(world.iter().map(|y| (y - here).angle(&(y - there))));
+                    median(&mut angles).unwrap_or(0.0)
+                }
+            };
+            baseline / self.config.keyframe_distance
         };
         let Some(rotation) = self.config.keyframe_rotation else {
             return distance(last) > 1.0;
@@ -974,7 +1011,8 @@ impl MonoExplorer {
                 .compose(&rigid_pose(graph, k).rotation().inverse())
                 .log()
                 .norm();
-            distance(k).max(turned / rotation) > 1.0 || (tracked.len() as f64) < wanted(k)
+            // The baseline last: with parallax it is the costly test.
+            turned > rotation || (tracked.len() as f64) < wanted(k) || distance(k) > 1.0
         })
     }
 
@@ -1336,11 +1374,12 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
 
+    /// A simulated camera's true poses and its measurements per frame.
+    type Drive = (Vec<Se3>, Vec<Vec<(TrackId, Vector2<f64>)>>);
+
     /// A camera sliding sideways (x) past a box of points 3–6 m ahead, `n` frames 4 cm apart,
     /// measured with Gaussian pixel noise `sigma`: `(truth, measurements per frame)`.
-    #[allow(clippy::type_complexity)]
-    fn sideways(seed: u64, n: usize, sigma: f64) -> (Vec<Se3>, Vec<Vec<(TrackId, Vector2<f64>)>>) {
-        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    fn sideways(seed: u64, n: usize, sigma: f64) -> Drive {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let points: Vec<Vector3<f64>> = (0..400)
             .map(|_| {
@@ -1351,9 +1390,40 @@ mod tests {
                 )
             })
             .collect();
+        moving(&mut rng, &points, Vector3::new(0.04, 0.0, 0.0), n, sigma)
+    }
+
+    /// A camera driving forward (z) down a street 12 m wide between walls of points from 5 m
+    /// ahead to 40 m beyond the end of the drive, `n` frames 50 cm apart.
+    fn forward(seed: u64, n: usize, sigma: f64) -> Drive {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let end = 0.5 * n as f64 + 40.0;
+        let points: Vec<Vector3<f64>> = (0..3000)
+            .map(|_| {
+                let side = if rng.random_bool(0.5) { -6.0 } else { 6.0 };
+                Vector3::new(
+                    side + rng.random_range(-0.5..0.5),
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(5.0..end),
+                )
+            })
+            .collect();
+        moving(&mut rng, &points, Vector3::new(0.0, 0.0, 0.5), n, sigma)
+    }
+
+    /// `points` measured with Gaussian pixel noise `sigma` by a camera whose centre moves by
+    /// `step` a frame for `n` frames (identity rotation).
+    fn moving(
+        rng: &mut ChaCha8Rng,
+        points: &[Vector3<f64>],
+        step: Vector3<f64>,
+        n: usize,
+        sigma: f64,
+    ) -> Drive {
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
         let noise = Normal::new(0.0, sigma).unwrap();
         let truth: Vec<Se3> = (0..n)
-            .map(|k| Se3::from_translation(Vector3::new(-0.04 * k as f64, 0.0, 0.0)))
+            .map(|k| Se3::from_translation(-step * k as f64))
             .collect();
         let frames = truth
             .iter()
@@ -1366,7 +1436,7 @@ mod tests {
                         (z.x >= 0.0 && z.x < 640.0 && z.y >= 0.0 && z.y < 480.0).then(|| {
                             (
                                 j as TrackId,
-                                z + Vector2::new(noise.sample(&mut rng), noise.sample(&mut rng)),
+                                z + Vector2::new(noise.sample(&mut *rng), noise.sample(&mut *rng)),
                             )
                         })
                     })
@@ -1604,6 +1674,67 @@ mod tests {
             by_coverage <= 1,
             "{by_coverage} (by distance: {by_distance})"
         );
+    }
+
+    /// Keyframes by parallax ([`KeyframeBaseline::Parallax`]): a camera sliding sideways gets
+    /// about as many as by distance over the scene depth (the two measures agree for it), one
+    /// driving forward far fewer (its points near the direction of travel gain no parallax),
+    /// and both trajectories are recovered.
+    #[test]
+    fn keyframes_by_parallax_are_sparser_only_for_forward_motion() {
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+        let run = |(truth, frames): &Drive, baseline| {
+            let mut explorer = MonoExplorer::new(
+                camera,
+                ExplorationConfig {
+                    keyframe_baseline: baseline,
+                    keyframe_rotation: Some(10f64.to_radians()),
+                    ..map_reuse(0.5)
+                },
+            );
+            let mut graph = SlamGraph::new();
+            for (f, m) in frames.iter().enumerate() {
+                explorer
+                    .process(&mut graph, f, m)
+                    .unwrap_or_else(|e| panic!("frame {f}: {e}"));
+            }
+            // Sim(3)-aligned centre error over the path.
+            let poses = explorer.frame_poses(&graph);
+            let est: Vec<Se3> = poses.iter().map(|(_, t)| *t).collect();
+            let gt: Vec<Se3> = poses.iter().map(|(f, _)| truth[*f]).collect();
+            let c = |t: &Se3| t.inverse().act(&Vector3::zeros());
+            let (e0, g0) = (c(&est[0]), c(&gt[0]));
+            let (e1, g1) = (c(est.last().unwrap()), c(gt.last().unwrap()));
+            let scale = (g1 - g0).norm() / (e1 - e0).norm();
+            let error = est
+                .iter()
+                .zip(&gt)
+                .map(|(e, g)| ((c(e) - e0) * scale - (c(g) - g0)).norm())
+                .fold(0.0, f64::max);
+            (explorer.map().keyframes.len(), error / (g1 - g0).norm())
+        };
+        let side = sideways(5, 100, 0.5);
+        let ahead = forward(5, 100, 0.5);
+        let (side_d, side_d_err) = run(&side, KeyframeBaseline::Distance);
+        let (side_p, side_p_err) = run(&side, KeyframeBaseline::Parallax);
+        let (ahead_d, ahead_d_err) = run(&ahead, KeyframeBaseline::Distance);
+        let (ahead_p, ahead_p_err) = run(&ahead, KeyframeBaseline::Parallax);
+        println!(
+            "keyframes sideways {side_d} by distance, {side_p} by parallax (worst error \
+             {side_d_err:.4} / {side_p_err:.4} of the path); forward {ahead_d}, {ahead_p} \
+             ({ahead_d_err:.4} / {ahead_p_err:.4})"
+        );
+        assert!(
+            (side_p as f64) >= 0.7 * side_d as f64 && (side_p as f64) <= 1.3 * side_d as f64,
+            "sideways: {side_p} by parallax, {side_d} by distance"
+        );
+        assert!(
+            (ahead_p as f64) <= 0.5 * ahead_d as f64,
+            "forward: {ahead_p} by parallax, {ahead_d} by distance"
+        );
+        for e in [side_d_err, side_p_err, ahead_d_err, ahead_p_err] {
+            assert!(e < 0.02, "{e}");
+        }
     }
 
     /// A correction that rescales the whole map by `a` (every keyframe `S ← S·diag(1/a)`, the

@@ -100,8 +100,22 @@ pub struct MonoConfig {
     /// most points with it (10, the thesis's window, §5.4).
     pub window: usize,
     /// A keyframe when the camera moved this fraction of the median scene depth from the last
-    /// one (0.05: a 3° parallax at the median depth, enough to triangulate new features).
+    /// one (0.05: a 3° parallax at the median depth, enough to triangulate new features), or,
+    /// with `keyframe_parallax`, when the tracked points' median parallax exceeds this many
+    /// radians.
     pub keyframe_distance: f64,
+    /// Measure a keyframe's baseline by the parallax of the tracked points (the median angle
+    /// between their rays from the keyframe and from the frame,
+    /// `slam::exploration::KeyframeBaseline::Parallax`) instead of by the distance over the
+    /// scene depth. Off: it makes a driving camera's keyframes by what new points need, a third
+    /// as many (KITTI 04: 55 instead of 150, ORB-SLAM3 73; the rendered town 288 instead of
+    /// 844) and the monocular frame twice as fast by the median, but with this front-end's
+    /// 100–140 map points per frame on a drive the sparser windows drift more: Sim(3) ATE
+    /// after the run KITTI 04 74.5 against 138 cm, but KITTI 06 snippet 8.9 against 4.0 cm,
+    /// 7-Scenes 4.7 against 3.8 cm, the town 214 / 171 against 53 / 28 cm (seeds 1, 2), the
+    /// courtyard 9.0 against 2.6 cm (no loop closed), room 0.94 against 0.73 cm; at 0.03 rad
+    /// no better (bench/README.md, "Keyframes by parallax").
+    pub keyframe_parallax: bool,
     /// The bootstrap waits for the parallax at which a typical point's relative depth error
     /// is at most this (0.1: `θ ≥ √2·σ/(f·ε)`, 1.5° at f = 525 px, σ = 1 px).
     pub bootstrap_depth_error: f64,
@@ -178,6 +192,17 @@ pub struct MonoConfig {
     /// When two successive detections agree: the second's similarity matches the first's
     /// carried by the odometry on both sides within these.
     pub loop_agreement: LoopAgreement,
+    /// A loop detection counts only if at least this fraction of the old place's map points
+    /// that its pose predicts visible are found there consistent with one pose (0.1). A
+    /// look-alike place — a corridor's repeated doors, a street like another — passes the
+    /// appearance check and matches its repeated parts at a consistent wrong pose, but not
+    /// the rest of the place: on the rendered building's corridor, 92 such detections found
+    /// 1.4–3.6 % of the predicted points (one 11 %), enough of them in a row to be accepted
+    /// and wreck the map (10–19 m of ATE); the true loops of the building, courtyard and town
+    /// found 13–55 % (the first glimpses of the building's revisit 4–6 %, accepted a few
+    /// keyframes later). The count Θ alone (`mapping.theta`) does not scale with the place: a
+    /// large place offers Θ chance matches.
+    pub loop_min_found_fraction: f64,
     /// If set, a loop may move the current keyframe by at most this fraction of the path
     /// travelled since the old keyframe. Not set by default: a loop is accepted on its
     /// evidence (`loop_consistency` detections in a row that agree, each with the old place's
@@ -258,6 +283,7 @@ impl Default for MonoConfig {
             feature_spacing: 12.0,
             window: 10,
             keyframe_distance: 0.05,
+            keyframe_parallax: false,
             bootstrap_depth_error: 0.1,
             bootstrap_min_sigma: 0.25,
             max_bootstrap_frames: 30,
@@ -272,6 +298,7 @@ impl Default for MonoConfig {
             loop_correction: LoopCorrection::Sim3,
             loop_consistency: 3,
             loop_agreement: LoopAgreement::default(),
+            loop_min_found_fraction: 0.1,
             max_loop_drift: None,
             correct_live: true,
             fixed_observers: 10,
@@ -856,9 +883,12 @@ impl MonoConfig {
             );
         }
         let fraction = |x: f64| (0.0..=1.0).contains(&x);
-        if !fraction(m.min_surviving_fraction) || !fraction(m.replenish_fraction) {
+        if !fraction(m.min_surviving_fraction)
+            || !fraction(m.replenish_fraction)
+            || !fraction(m.loop_min_found_fraction)
+        {
             return Err(
-                "mono.min_surviving_fraction and mono.replenish_fraction must lie in [0, 1]".into(),
+                "mono.min_surviving_fraction, mono.replenish_fraction and mono.loop_min_found_fraction must lie in [0, 1]".into(),
             );
         }
         let a = &m.loop_agreement;

@@ -6,7 +6,7 @@ use super::{DenseModelConfig, SystemConfig};
 use crate::place_recognition::{Alignment, PlaceRecognitionConfig};
 use geom::StereoCamera;
 use slam::dwo::DwoParams;
-use slam::exploration::{ExplorationConfig, LocalWindow};
+use slam::exploration::{ExplorationConfig, KeyframeBaseline, LocalWindow};
 use slam::loop_closure::DriftLimits;
 use slam::mapping::MappingConfig;
 
@@ -52,6 +52,11 @@ impl SystemConfig {
             sigma: self.pixel_noise,
             window: m.window,
             keyframe_distance: m.keyframe_distance,
+            keyframe_baseline: if m.keyframe_parallax {
+                KeyframeBaseline::Parallax
+            } else {
+                KeyframeBaseline::Distance
+            },
             max_features: m.max_features,
             feature_spacing: m.feature_spacing,
             image_width: width as f64,
