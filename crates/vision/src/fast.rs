@@ -95,6 +95,50 @@ pub fn fast9(img: &GrayImage, threshold: u8, nonmax_suppression: bool) -> Vec<Co
     fast9_level(img, threshold, nonmax_suppression, 0)
 }
 
+/// An image's FAST-9 corners (non-maximum suppressed), detected once on first use at
+/// `threshold` and given to each caller at its own threshold at or above it. A corner's FAST
+/// score does not depend on the detection threshold (it is the largest threshold at which the
+/// pixel is a corner, minus one), and a neighbour weaker than a corner's threshold never
+/// suppresses it, so the corners at `t ≥ threshold` are exactly those scoring at least `t`
+/// (a test compares them with [`fast9`] at `t`): one pass over the image serves the monocular
+/// front-end's corner selection (threshold 20) and its guided search (12).
+pub struct FrameCorners<'a> {
+    image: &'a GrayImage,
+    threshold: u8,
+    corners: std::cell::OnceCell<Vec<Corner>>,
+}
+
+impl<'a> FrameCorners<'a> {
+    /// The corners of `image`, to be detected at `threshold` when first asked for.
+    pub fn new(image: &'a GrayImage, threshold: u8) -> Self {
+        FrameCorners {
+            image,
+            threshold,
+            corners: std::cell::OnceCell::new(),
+        }
+    }
+
+    /// The image.
+    pub fn image(&self) -> &'a GrayImage {
+        self.image
+    }
+
+    /// The corners at `threshold` ([`fast9`] with non-maximum suppression), in row-major
+    /// order; below the detection threshold, detected anew.
+    pub fn at(&self, threshold: u8) -> Vec<Corner> {
+        if threshold < self.threshold {
+            return fast9(self.image, threshold, true);
+        }
+        let all = self
+            .corners
+            .get_or_init(|| fast9(self.image, self.threshold, true));
+        all.iter()
+            .filter(|c| c.score >= threshold as f32)
+            .copied()
+            .collect()
+    }
+}
+
 /// [`fast9`] tagging corners with a pyramid level.
 ///
 /// On x86-64 CPUs with AVX2 a copy of the detector compiled for AVX2 is used (runtime
@@ -649,6 +693,24 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (x >> 56) as u8
         })
+    }
+
+    /// The corners at a threshold are those of a lower threshold scoring at least it, the
+    /// non-maximum suppression included ([`FrameCorners`]), with SIMD and on the scalar path.
+    #[test]
+    fn corners_at_a_threshold_are_those_of_a_lower_one_scoring_at_least_it() {
+        for seed in [1, 2, 3] {
+            let img = noise_image(160, 120, seed);
+            let check = || {
+                let corners = FrameCorners::new(&img, 12);
+                for t in [12u8, 13, 20, 27, 40] {
+                    assert_eq!(corners.at(t), fast9(&img, t, true), "seed {seed}, t {t}");
+                }
+                assert_eq!(corners.at(8), fast9(&img, 8, true));
+            };
+            check();
+            crate::simd::scalar_only(check);
+        }
     }
 
     #[test]

@@ -284,8 +284,17 @@ pub fn select_corners(
     count: usize,
     min_cell: f32,
 ) -> (usize, Vec<QuadPoint>) {
-    let corners = fast9(img, threshold, true);
-    let points = quad_points(&with_shi_tomasi(img, &corners, 3));
+    select_among(img, &fast9(img, threshold, true), count, min_cell)
+}
+
+/// [`select_corners`] among FAST corners `corners` of `img` already detected.
+pub fn select_among(
+    img: &GrayImage,
+    corners: &[Corner],
+    count: usize,
+    min_cell: f32,
+) -> (usize, Vec<QuadPoint>) {
+    let points = quad_points(&with_shi_tomasi(img, corners, 3));
     let tree = QuadTree::from_points(img.width() as f32, img.height() as f32, min_cell, &points);
     (corners.len(), tree.select(count, 0))
 }

@@ -63,7 +63,7 @@ use std::collections::{BTreeMap, HashSet};
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 use tracks::{CornerTracks, Refused};
-use vision::fast::fast9;
+use vision::fast::FrameCorners;
 use vision::image::GrayImage;
 
 /// The context of the monocular sensor's calls.
@@ -218,11 +218,12 @@ impl MonoSensor {
         &mut self,
         ctx: &mut Ctx,
         frame: &data::sequence::Frame,
+        corners: &FrameCorners,
     ) -> Result<Result<Measurements, StepState>, SystemError> {
         let t = Instant::now();
         let followed: Result<Measurements, Refused> = self
             .tracks
-            .push(frame.gray())
+            .push(corners)
             .map_err(|e| SystemError::Frame(e.into()))?
             .map(|tracks| {
                 tracks
@@ -515,14 +516,15 @@ impl MonoSensor {
         explorer.relocalise(frame.index, pose);
         self.reference = Some(relocalisation.keyframe);
         self.tracks.reset();
-        let mut measurements: Measurements = match self.tracks.push(frame.gray()) {
+        let corners = frame_corners(ctx.config, frame.gray());
+        let mut measurements: Measurements = match self.tracks.push(&corners) {
             Ok(Ok(tracks)) => tracks
                 .iter()
                 .map(|&(id, p)| (id, Vector2::new(p[0] as f64, p[1] as f64)))
                 .collect(),
             _ => return Err("no corner tracks in this frame".into()),
         };
-        let found = self.refind(ctx, frame.index, frame.gray(), &mut measurements);
+        let found = self.refind(ctx, frame.index, &corners, &mut measurements);
         if found < ctx.config.tracker.min_good {
             self.tracks.reset();
             self.reference = None;
@@ -659,9 +661,10 @@ impl MonoSensor {
         &mut self,
         ctx: &Ctx,
         frame: usize,
-        image: &GrayImage,
+        corners: &FrameCorners,
         measurements: &mut Measurements,
     ) -> usize {
+        let image = corners.image();
         let config = ctx.config;
         if !config.mono.refind {
             return 0;
@@ -675,7 +678,7 @@ impl MonoSensor {
             return 0;
         }
         let corners = CornerIndex::new(
-            fast9(image, config.tracker.fast_threshold, true),
+            corners.at(config.tracker.fast_threshold),
             w,
             h,
             CORNER_CELL_PX,
@@ -736,6 +739,18 @@ fn keyframe_images(frame: &data::sequence::Frame) -> KeyframeImages {
         depth: None,
         colour: frame.colour().cloned(),
     }
+}
+
+/// A frame's FAST corners, detected once for both the corner selection
+/// (`mono.fast_threshold`) and the guided search (`tracker.fast_threshold`).
+fn frame_corners<'a>(config: &SystemConfig, image: &'a GrayImage) -> FrameCorners<'a> {
+    FrameCorners::new(
+        image,
+        config
+            .mono
+            .fast_threshold
+            .min(config.tracker.fast_threshold),
+    )
 }
 
 /// The keyframes within the first `limit` of a breadth-first search from `start` over the
@@ -814,7 +829,8 @@ impl Sensor<2> for MonoSensor {
                 Duration::ZERO,
             ));
         }
-        let mut measurements = match self.follow_tracks(ctx, frame)? {
+        let corners = frame_corners(ctx.config, frame.gray());
+        let mut measurements = match self.follow_tracks(ctx, frame, &corners)? {
             Ok(m) => m,
             Err(state) => return Ok(Step::untracked(state, start.elapsed())),
         };
@@ -824,7 +840,7 @@ impl Sensor<2> for MonoSensor {
             ctx.timings.record("mono: verify tracks", t.elapsed());
         }
         let t = Instant::now();
-        let refound = self.refind(ctx, frame.index, frame.gray(), &mut measurements);
+        let refound = self.refind(ctx, frame.index, &corners, &mut measurements);
         if self.explorer.is_some() && ctx.config.mono.refind {
             ctx.timings.record("mono: re-find map points", t.elapsed());
         }

@@ -7,10 +7,11 @@
 
 use crate::config::MonoConfig;
 use slam::exploration::TrackId;
-use vision::image::{GrayImage, ImageError};
+use vision::fast::FrameCorners;
+use vision::image::ImageError;
 use vision::lk::{LkParams, track_forward_backward};
 use vision::pyramid::Pyramid;
-use vision::quadtree::select_corners;
+use vision::quadtree::select_among;
 
 /// A live track: its id and its position in the last frame (pixels).
 pub type Track = (TrackId, [f32; 2]);
@@ -73,11 +74,16 @@ impl CornerTracks {
         self.previous = None;
     }
 
-    /// Follows the tracks into `image` and replenishes them; returns the live tracks with their
+    /// Follows the tracks into the image of `corners` and replenishes them (among its FAST
+    /// corners at `mono.fast_threshold`); returns the live tracks with their
     /// positions (pixels), or `Ok(Err(Refused))` when too few survived
     /// (`mono.min_surviving_fraction`): the frame is refused and the tracks stay in the previous
     /// one.
-    pub fn push(&mut self, image: &GrayImage) -> Result<Result<&[Track], Refused>, ImageError> {
+    pub fn push(
+        &mut self,
+        corners: &FrameCorners,
+    ) -> Result<Result<&[Track], Refused>, ImageError> {
+        let image = corners.image();
         let levels = self.config.levels;
         let pyramid = Pyramid::new(image, levels, 16)?;
         let (w, h) = (image.width() as f32, image.height() as f32);
@@ -114,7 +120,7 @@ impl CornerTracks {
             }
         }
         if (live.len() as f64) < self.config.replenish_fraction * self.config.tracks as f64 {
-            self.replenish(image, &mut live);
+            self.replenish(corners, &mut live);
         }
         let (_, tracks) = self.previous.insert((pyramid, live));
         Ok(Ok(tracks))
@@ -122,10 +128,11 @@ impl CornerTracks {
 
     /// New corners, in the quadtree's order, at least `track_spacing` from every track, until
     /// `tracks` live.
-    fn replenish(&mut self, image: &GrayImage, live: &mut Tracks) {
-        let (_, selected) = select_corners(
+    fn replenish(&mut self, corners: &FrameCorners, live: &mut Tracks) {
+        let image = corners.image();
+        let (_, selected) = select_among(
             image,
-            self.config.fast_threshold,
+            &corners.at(self.config.fast_threshold),
             self.config.tracks,
             self.config.min_cell,
         );
