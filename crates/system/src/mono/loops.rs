@@ -561,7 +561,9 @@ impl MonoLoops {
     /// The evidence a loop is accepted on: a look-alike place is seldom found again point by
     /// point where the loop says it is. Refused, with the reason, if fewer than Θ of the old
     /// place's points are found consistent with one pose — Θ, the points that make two
-    /// keyframes neighbours in the map (`mapping.theta`).
+    /// keyframes neighbours in the map (`mapping.theta`) — or fewer than
+    /// `mono.loop_min_found_fraction` of those predicted visible (a large place offers Θ
+    /// chance matches; a look-alike matches only its repeated parts).
     fn fit_old_place(
         &mut self,
         graph: &SharedGraph<2>,
