@@ -328,13 +328,16 @@ fn ate_sim3(gt: &[lie::Se3], est: &[lie::Se3]) -> f64 {
 }
 
 /// A monocular map too: saved from the first 500 colour frames, loaded by a run of the next
-/// 150 that localises them in it (P3P against the keyframes' points, then the map points
-/// found again around the pose) — at least 95 % tracked, no keyframe, no point added or
-/// moved, the same trajectory twice — in the map's scale, within 1.5 times one session over
-/// all 650 frames on the same 150 (`dwslam run`: 1.56 cm against 1.28 cm Sim(3)-aligned).
-/// Over frames 500–999 the map's 1122 points leave 122 frames weak and the ATE is 10.5 cm
-/// against one session's 2.6 cm: a monocular map holds the points its feature filters
-/// converged, which a camera only localising cannot add to (bench/README).
+/// 500 that localises them in it (P3P against the keyframes' points, then the map points
+/// found again around the pose; where the map's points do not cover the view, temporary
+/// keyframes whose feature filters and window BA make points of their own, the map's keyframes
+/// and points held, all removed at the end) — at least 95 % tracked, no keyframe kept, the
+/// map's keyframes and points as loaded, the same trajectory twice — in the map's scale,
+/// within 1.5 times one session over all 1000 frames on the same 500 (here 3.34 cm against
+/// 2.57 cm Sim(3)-aligned; `dwslam run --deterministic` 4.01 cm, the map itself good to 3.5 cm
+/// over its own frames; the issue's 1.2 is not met).
+/// Without the temporary keyframes the map's 1122 points left frames 735–886 weak (9–39
+/// points) and the localised frames had 10.5 cm (bench/README, issue 43).
 #[test]
 fn a_monocular_map_localises_too() {
     let Some(path) = seven_scenes() else { return };
@@ -364,7 +367,7 @@ fn a_monocular_map_localises_too() {
     let system::RunGraph::Mono(graph) = &mapped.graph else {
         panic!("a monocular run")
     };
-    let frames = read(500..650);
+    let frames = read(500..1000);
     let gt: Vec<lie::Se3> = frames
         .iter()
         .map(|f| f.world_from_camera.unwrap())
@@ -400,14 +403,25 @@ fn a_monocular_map_localises_too() {
     let system::RunGraph::Mono(after) = &a.graph else {
         panic!()
     };
-    assert_eq!(after.to_parts(), graph.to_parts(), "the map changed");
+    // The map as loaded: the same keyframes (poses, measurements, edges) and points.
+    let (before, now) = (graph.to_parts(), after.to_parts());
+    assert_eq!(
+        now.keyframes, before.keyframes,
+        "the map's keyframes changed"
+    );
+    assert_eq!(now.points, before.points, "the map's points changed");
+    assert!(
+        a.warnings.iter().any(|w| w.contains("temporary keyframes")),
+        "{:?}",
+        a.warnings
+    );
     let b = localise();
     assert_same_poses(&a, &b);
     let index_of = |i: usize| i - 500;
     let (gt_posed, est): (Vec<_>, Vec<_>) =
         posed.iter().map(|&(i, p)| (gt[index_of(i)], p)).unzip();
     let localised = ate_sim3(&gt_posed, &est);
-    let one = run_as(&sensor, read(0..650), Options::default()).unwrap();
+    let one = run_as(&sensor, read(0..1000), Options::default()).unwrap();
     let (gt_one, est_one): (Vec<_>, Vec<_>) = one.record.frames[500..]
         .iter()
         .filter_map(|f| Some((gt[index_of(f.index)], f.world_from_camera?)))

@@ -398,8 +398,12 @@ pub struct MonoExplorer {
     frame_poses: Vec<(usize, Se3)>,
     state: State,
     double_window: Option<crate::dwo::DoubleWindowOptimiser>,
-    /// Only localise: track the map's points, make no keyframe ([`MonoExplorer::resume`]).
+    /// Only localise: track the map's points; where they do not cover the view, temporary
+    /// keyframes with their own points ([`MonoExplorer::resume`]).
     localise: bool,
+    /// Localising: the keyframes made where the map does not cover the view, oldest first
+    /// ([`MonoExplorer::remove_temporary`]).
+    temporary: Vec<KeyframeId>,
 }
 
 fn solver(iterations: usize) -> SolverOptions {
@@ -441,6 +445,7 @@ impl MonoExplorer {
             frame_poses: Vec::new(),
             state: State::Empty,
             localise: false,
+            temporary: Vec::new(),
         }
     }
 
@@ -884,12 +889,15 @@ impl MonoExplorer {
             .collect();
         let median_depth = median(&mut depths).unwrap_or(1.0);
         let last_kf = KeyframeId::from_index(self.map.keyframes.len() - 1);
-        let is_keyframe = !self.localise
-            && (self.view_uncovered(graph, &pose, last_kf, &tracked, &world, median_depth)
-                || tracked.len() < self.config.min_tracked_for_keyframe);
+        let is_keyframe =
+            self.view_uncovered(graph, &pose, last_kf, &tracked, &world, median_depth)
+                || tracked.len() < self.config.min_tracked_for_keyframe;
         let keyframe = is_keyframe.then(|| {
             let k = self.map.add_keyframe(graph, frame, pose, measurements);
             self.keyframe_of_frame.insert(frame, k);
+            if self.localise {
+                self.temporary.push(k);
+            }
             for (p, z) in &tracked {
                 add_observation(graph, k, *p, *z);
             }
@@ -917,7 +925,7 @@ impl MonoExplorer {
         if let Some(k) = keyframe {
             started = self.start_features(graph, k, frame, measurements);
             match &mut self.double_window {
-                Some(dwo) => {
+                Some(dwo) if !self.localise => {
                     let previous = KeyframeId::from_index(k.index().saturating_sub(1));
                     crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
                         .and_then(|_| graph.set_reference(k))
@@ -934,7 +942,8 @@ impl MonoExplorer {
                         }
                     }
                 }
-                None => self.window_ba(graph, k)?,
+                // A temporary keyframe's window moves only temporary keyframes and points.
+                _ => self.window_ba(graph, k)?,
             }
             pose = rigid_pose(graph, k);
         }
@@ -1210,13 +1219,32 @@ impl MonoExplorer {
         graph: &mut SlamGraph<2>,
         k: KeyframeId,
     ) -> Result<(), ExplorationError> {
-        let local = self.local_keyframes(graph, k);
+        let mut local = self.local_keyframes(graph, k);
+        // Localising, only the temporary keyframes and their points move: the loaded map's
+        // keyframes that measure the window's points are held as its fixed observers, and its
+        // points are held (`MonoExplorer::resume`).
+        if self.localise {
+            local.retain(|w| self.temporary.contains(w));
+        }
         let mut count: BTreeMap<PointId, usize> = BTreeMap::new();
         for &w in &local {
             for &p in graph.keyframe(w).expect("in the map").observations().keys() {
                 *count.entry(p).or_default() += 1;
             }
         }
+        let held: HashSet<PointId> = if self.localise {
+            count
+                .keys()
+                .copied()
+                .filter(|&p| {
+                    graph
+                        .point(p)
+                        .is_some_and(|pt| !self.temporary.contains(&pt.anchor()))
+                })
+                .collect()
+        } else {
+            HashSet::new()
+        };
         // Other observers of the window's points, those measuring most of them first.
         let mut fixed: Vec<KeyframeId> = Vec::new();
         if self.config.fixed_observers > 0 {
@@ -1291,8 +1319,8 @@ impl MonoExplorer {
             &Gauge::FixPoses(gauge),
         )
         .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        for (v, &c) in ba.points.iter().zip(count.values()) {
-            if c < 2 {
+        for (v, (&p, &c)) in ba.points.iter().zip(&count) {
+            if c < 2 || held.contains(&p) {
                 ba.problem.set_fixed(v.key(), true);
             }
         }
@@ -1316,7 +1344,7 @@ impl MonoExplorer {
             let all_poses = ba.camera_from_world();
             for o in &observations {
                 let p = ids[o.point];
-                if count[&p] < 2 {
+                if count[&p] < 2 || (self.localise && !self.temporary.contains(&window[o.pose])) {
                     continue;
                 }
                 let x = all_poses[o.pose].act(&points[o.point]);
@@ -1328,6 +1356,9 @@ impl MonoExplorer {
             }
         }
         for (&p, y) in count.keys().zip(&points) {
+            if held.contains(&p) {
+                continue;
+            }
             let anchor = graph.point(p).expect("in the map").anchor();
             let x = graph.pose(anchor).expect("in the map").act(y);
             // A point the window pushed behind its anchor keeps its previous position.

@@ -108,8 +108,10 @@ pub(crate) struct MonoSensor {
     accepted: BTreeMap<usize, Vec<LoopDetection>>,
     /// Live loop corrections written into the graph (shared with the loop stage).
     corrections_applied: Arc<std::sync::atomic::AtomicUsize>,
-    /// Only localise in a loaded map: no keyframe, no new map.
+    /// Only localise in a loaded map: no keyframe kept, no new map.
     localise: bool,
+    /// Localising: the loaded map's newest keyframe, which the frames are kept relative to.
+    loaded_anchor: Option<KeyframeId>,
     /// Report each frame's corner tracks (`Step::observed`), for a live view.
     observe: bool,
 }
@@ -159,6 +161,7 @@ impl MonoSensor {
             accepted: BTreeMap::new(),
             corrections_applied: Default::default(),
             localise: false,
+            loaded_anchor: None,
             observe: false,
         }
     }
@@ -346,7 +349,14 @@ impl MonoSensor {
         let first = explorer.map_keyframes().count() <= 2;
         let last = explorer.map_keyframes().last();
         let mut earlier_keyframe = None;
-        if let Some(k) = o.keyframe {
+        // Localising, a keyframe is temporary (`MonoExplorer::resume`): its images are the
+        // templates of its points; it goes to no back-end and is removed at the end.
+        let temporary = o.keyframe.filter(|_| self.localise);
+        if let Some(k) = temporary {
+            write_lock(ctx.store).insert(k, keyframe_images(frame));
+            ctx.timings
+                .record("keyframe: temporary (localising)", explored);
+        } else if let Some(k) = o.keyframe {
             earlier_keyframe = self.keyframe(ctx, frame, k);
             ctx.timings.record(
                 if first {
@@ -398,8 +408,16 @@ impl MonoSensor {
         Step {
             state,
             camera_from_world: o.camera_from_world.map(|t| Sim3::from_se3(&t)),
-            anchor: last.map(|k| (k, o.keyframe == Some(k))),
-            keyframe: o.keyframe.map(|k| (k, reason)),
+            // Localising, frames are kept relative to a keyframe of the loaded map (nothing
+            // moves it; the temporary ones are removed at the end).
+            anchor: match self.loaded_anchor.filter(|_| self.localise) {
+                Some(k) => Some((k, false)),
+                None => last.map(|k| (k, o.keyframe == Some(k))),
+            },
+            keyframe: o
+                .keyframe
+                .filter(|_| temporary.is_none())
+                .map(|k| (k, reason)),
             // The tracks are the candidates; the map points among them are measured (by LK,
             // or found again by guided search) and the motion-only BA keeps them all (Huber).
             stats: o.camera_from_world.map(|_| TrackerStats {
@@ -955,6 +973,20 @@ impl Sensor<2> for MonoSensor {
     /// group's correction already, and the other's would start from it). A graph of one map is
     /// then bundle adjusted ([`MonoSensor::refine`]).
     fn finish(&mut self, ctx: &mut Ctx, _interrupted: bool) -> Result<Finished<2>, SystemError> {
+        if let Some(explorer) = self.explorer.as_mut().filter(|_| self.localise) {
+            let removed = explorer.remove_temporary(&mut ctx.graph.write());
+            if !removed.is_empty() {
+                let mut store = write_lock(ctx.store);
+                for k in &removed {
+                    store.remove(*k);
+                }
+                ctx.warnings.push(format!(
+                    "localising: {} temporary keyframes bridged views the map does not cover \
+                     (removed at the end: the map is as loaded)",
+                    removed.len()
+                ));
+            }
+        }
         let graph = ctx.graph.snapshot();
         let (primary, other) = correction_groups(ctx.config.mono.loop_correction);
         let maps: Vec<usize> = graph
@@ -1083,6 +1115,12 @@ impl Sensor<2> for MonoSensor {
             localise,
         ));
         self.localise = localise;
+        let current = graph.current_map();
+        self.loaded_anchor = graph
+            .keyframes()
+            .filter(|(_, kf)| kf.map() == current)
+            .map(|(k, _)| k)
+            .last();
         self.bootstrapping = false;
         self.lost = Some(Lost {
             frame: 0,
