@@ -186,19 +186,7 @@ fn a_saved_map_localises_the_next_frames_and_adds_nothing() {
     let system::RunGraph::Depth(after) = &a.graph else {
         panic!()
     };
-    // The map as loaded: the same keyframes (poses, measurements, edges) and points (the
-    // temporary keyframes that bridged views it does not cover are gone with their points).
-    let (before, now) = (graph.to_parts(), after.to_parts());
-    assert_eq!(
-        now.keyframes, before.keyframes,
-        "the map's keyframes changed"
-    );
-    assert_eq!(now.points, before.points, "the map's points changed");
-    assert!(
-        a.warnings.iter().any(|w| w.contains("temporary keyframes")),
-        "{:?}",
-        a.warnings
-    );
+    assert_map_as_loaded(graph, after, &a);
     // Deterministic: the same trajectory again.
     let b = localise();
     assert_same_poses(&a, &b);
@@ -319,6 +307,29 @@ fn bad_maps_are_clear_errors_never_panics() {
     assert!(matches!(err, SystemError::Map(_)), "{err}");
 }
 
+/// A localisation left the map as loaded: the same keyframes (poses, measurements, edges) and
+/// points; the temporary keyframes that bridged views it does not cover (a warning says how
+/// many) are gone with their points.
+fn assert_map_as_loaded<const N: usize>(
+    loaded: &slam::map::SlamGraph<N>,
+    after: &slam::map::SlamGraph<N>,
+    run: &RunResult,
+) {
+    let (before, now) = (loaded.to_parts(), after.to_parts());
+    assert_eq!(
+        now.keyframes, before.keyframes,
+        "the map's keyframes changed"
+    );
+    assert_eq!(now.points, before.points, "the map's points changed");
+    assert!(
+        run.warnings
+            .iter()
+            .any(|w| w.contains("temporary keyframes")),
+        "{:?}",
+        run.warnings
+    );
+}
+
 /// Sim(3)-aligned ATE RMSE (metres).
 fn ate_sim3(gt: &[lie::Se3], est: &[lie::Se3]) -> f64 {
     data::eval::ate(gt, est, data::eval::Alignment::Sim3)
@@ -403,18 +414,7 @@ fn a_monocular_map_localises_too() {
     let system::RunGraph::Mono(after) = &a.graph else {
         panic!()
     };
-    // The map as loaded: the same keyframes (poses, measurements, edges) and points.
-    let (before, now) = (graph.to_parts(), after.to_parts());
-    assert_eq!(
-        now.keyframes, before.keyframes,
-        "the map's keyframes changed"
-    );
-    assert_eq!(now.points, before.points, "the map's points changed");
-    assert!(
-        a.warnings.iter().any(|w| w.contains("temporary keyframes")),
-        "{:?}",
-        a.warnings
-    );
+    assert_map_as_loaded(graph, after, &a);
     let b = localise();
     assert_same_poses(&a, &b);
     let index_of = |i: usize| i - 500;
