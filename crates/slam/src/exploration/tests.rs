@@ -1,0 +1,501 @@
+//! The exploration's tests: simulated cameras and their tracks.
+
+use super::*;
+use crate::pose_graph::rigid_from_similarity;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// A simulated camera's true poses and its measurements per frame.
+type Drive = (Vec<Se3>, Vec<Vec<(TrackId, Vector2<f64>)>>);
+
+/// A camera sliding sideways (x) past a box of points 3–6 m ahead, `n` frames 4 cm apart,
+/// measured with Gaussian pixel noise `sigma`: `(truth, measurements per frame)`.
+fn sideways(seed: u64, n: usize, sigma: f64) -> Drive {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let points: Vec<Vector3<f64>> = (0..400)
+        .map(|_| {
+            Vector3::new(
+                rng.random_range(-4.0..(4.0 + 0.04 * n as f64)),
+                rng.random_range(-2.0..2.0),
+                rng.random_range(3.0..6.0),
+            )
+        })
+        .collect();
+    moving(&mut rng, &points, Vector3::new(0.04, 0.0, 0.0), n, sigma)
+}
+
+/// A camera driving forward (z) down a street 12 m wide between walls of points from 5 m
+/// ahead to 40 m beyond the end of the drive, `n` frames 50 cm apart.
+fn forward(seed: u64, n: usize, sigma: f64) -> Drive {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let end = 0.5 * n as f64 + 40.0;
+    let points: Vec<Vector3<f64>> = (0..3000)
+        .map(|_| {
+            let side = if rng.random_bool(0.5) { -6.0 } else { 6.0 };
+            Vector3::new(
+                side + rng.random_range(-0.5..0.5),
+                rng.random_range(-2.0..2.0),
+                rng.random_range(5.0..end),
+            )
+        })
+        .collect();
+    moving(&mut rng, &points, Vector3::new(0.0, 0.0, 0.5), n, sigma)
+}
+
+/// `points` measured with Gaussian pixel noise `sigma` by a camera whose centre moves by
+/// `step` a frame for `n` frames (identity rotation).
+fn moving(
+    rng: &mut ChaCha8Rng,
+    points: &[Vector3<f64>],
+    step: Vector3<f64>,
+    n: usize,
+    sigma: f64,
+) -> Drive {
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let noise = Normal::new(0.0, sigma).unwrap();
+    let truth: Vec<Se3> = (0..n)
+        .map(|k| Se3::from_translation(-step * k as f64))
+        .collect();
+    let frames = truth
+        .iter()
+        .map(|t| {
+            points
+                .iter()
+                .enumerate()
+                .filter_map(|(j, p)| {
+                    let z = CameraModel::project(&camera, &t.act(p)).ok()?;
+                    (z.x >= 0.0 && z.x < 640.0 && z.y >= 0.0 && z.y < 480.0).then(|| {
+                        (
+                            j as TrackId,
+                            z + Vector2::new(noise.sample(&mut *rng), noise.sample(&mut *rng)),
+                        )
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    (truth, frames)
+}
+
+fn explore(frames: &[Vec<(TrackId, Vector2<f64>)>], sigma: f64) -> (MonoExplorer, SlamGraph<2>) {
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let mut graph = SlamGraph::new();
+    let mut explorer = MonoExplorer::new(
+        camera,
+        ExplorationConfig {
+            sigma,
+            ..ExplorationConfig::default()
+        },
+    );
+    for (f, m) in frames.iter().enumerate() {
+        explorer.process(&mut graph, f, m).unwrap();
+    }
+    (explorer, graph)
+}
+
+/// The live system's settings: covisible window, fixed older observers, outliers removed.
+fn map_reuse(sigma: f64) -> ExplorationConfig {
+    ExplorationConfig {
+        sigma,
+        local_window: LocalWindow::Covisible,
+        fixed_observers: 10,
+        remove_outliers: true,
+        ..ExplorationConfig::default()
+    }
+}
+
+/// A track that jumps to another corner (15 px off its point from frame 60 on, across the
+/// direction of motion, so no one point explains its measurements before and after): with
+/// outliers removed, the map keeps only measurements of the point that agree with it (all
+/// within 3σ of its projection); without, the keyframes keep both and contradict each
+/// other.
+#[test]
+fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
+    let (_, mut frames) = sideways(3, 100, 0.5);
+    // A point seen from the start to the end.
+    let track = frames[0]
+        .iter()
+        .map(|(t, _)| *t)
+        .find(|t| frames[99].iter().any(|(u, _)| u == t))
+        .unwrap();
+    for m in frames.iter_mut().skip(60) {
+        for (t, z) in m.iter_mut() {
+            if *t == track {
+                z.y += 15.0;
+            }
+        }
+    }
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    for (config, removed) in [
+        (map_reuse(0.5), true),
+        (ExplorationConfig::default(), false),
+    ] {
+        let config = ExplorationConfig {
+            sigma: 0.5,
+            ..config
+        };
+        let mut explorer = MonoExplorer::new(camera, config);
+        let mut graph = SlamGraph::new();
+        let mut point = None;
+        for (f, m) in frames.iter().enumerate() {
+            explorer.process(&mut graph, f, m).unwrap();
+            if f == 59 {
+                point = explorer.active().get(&track).copied();
+            }
+        }
+        let point = point.expect("a map point by frame 59");
+        let graph = &graph;
+        let worst = graph.point(point).map_or(0.0, |pt| {
+            let y = graph.point_world(point).unwrap();
+            pt.observers()
+                .iter()
+                .map(|&k| {
+                    let z = graph.keyframe(k).unwrap().observations()[&point];
+                    let t = rigid_from_similarity(&graph.pose(k).unwrap());
+                    (CameraModel::project(&camera, &t.act(&y)).unwrap() - z).norm()
+                })
+                .fold(0.0, f64::max)
+        });
+        println!("outliers removed {removed}: worst residual {worst:.2} px");
+        if removed {
+            assert!(worst <= 1.5, "{worst} px");
+        } else {
+            assert!(worst > 5.0, "{worst} px");
+        }
+    }
+}
+
+/// A camera lost for ten frames, whose tracks all die, found again by P3P RANSAC against
+/// the map's points (`geom::pnp`) and relocalised there: it tracks on in the same map with
+/// new tracks (associated with the points they see), and after the gap it is where the
+/// map's frame and scale (from the path before the gap) put the ground truth, as closely
+/// as a camera never lost (the same frames without the gap) is.
+#[test]
+fn a_lost_camera_relocalised_by_p3p_tracks_on_in_the_same_map() {
+    let (truth, frames) = sideways(5, 100, 0.5);
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let mut explorer = MonoExplorer::new(camera, map_reuse(0.5));
+    let mut graph = SlamGraph::new();
+    assert!(!explorer.relocalise(0, Se3::identity()), "no map yet");
+    for (f, m) in frames.iter().enumerate().take(60) {
+        explorer.process(&mut graph, f, m).unwrap();
+    }
+    // Frame 60 measures nothing (tracking is lost: the exploration stops tracking),
+    // 61–69 are not given; from 70 on every track is new (ids + 10 000).
+    assert!(matches!(
+        explorer.process(&mut graph, 60, &[]),
+        Err(ExplorationError::TrackingLost { frame: 60, .. })
+    ));
+    const NEW: TrackId = 10_000;
+    let renamed: Vec<Vec<(TrackId, Vector2<f64>)>> = frames[70..]
+        .iter()
+        .map(|m| m.iter().map(|&(t, z)| (t + NEW, z)).collect())
+        .collect();
+    let point_of: HashMap<TrackId, PointId> = graph
+        .points()
+        .map(|(p, _)| (explorer.map().track(p), p))
+        .collect();
+    let seen: Vec<(TrackId, PointId, Vector2<f64>)> = renamed[0]
+        .iter()
+        .filter_map(|&(t, z)| point_of.get(&(t - NEW)).map(|&p| (t, p, z)))
+        .collect();
+    let normalised: Vec<Vector2<f64>> = seen
+        .iter()
+        .map(|(_, _, z)| camera.normalised_from_pixel(z))
+        .collect();
+    let points: Vec<Vector3<f64>> = seen
+        .iter()
+        .map(|(_, p, _)| graph.point_world(*p).unwrap())
+        .collect();
+    let sigma = vec![0.5 / 500.0; seen.len()];
+    let pnp = geom::pnp::PnpEstimator {
+        normalised: &normalised,
+        points: &points,
+        sigma: &sigma,
+    };
+    let found = geom::ransac::ransac(
+        &pnp,
+        &RansacConfig {
+            threshold: 3.03,
+            ..RansacConfig::default()
+        },
+    )
+    .unwrap();
+    assert!(found.inliers.len() >= 20, "{} inliers", found.inliers.len());
+    assert!(explorer.relocalise(70, found.model));
+    assert!(explorer.active().is_empty());
+    for (t, p, _) in &seen {
+        assert!(explorer.associate(&graph, *t, *p));
+    }
+    for (i, m) in renamed.iter().enumerate() {
+        let o = explorer
+            .process(&mut graph, 70 + i, m)
+            .unwrap_or_else(|e| panic!("frame {}: {e}", 70 + i));
+        assert!(o.tracked >= 20, "frame {}: {} tracked", 70 + i, o.tracked);
+    }
+    // The true centres in the map's frame and scale, by the first tracked frame's pose
+    // and the scale of the path before the gap: after it, the camera is where the map
+    // before it puts it, as far as it is for a camera never lost (the same frames without
+    // the gap: the monocular drift of this sequence).
+    let worst = |poses: &[(usize, Se3)]| {
+        let (first, t_first) = poses[0];
+        let (before, t_before) = *poses.iter().rfind(|(f, _)| *f < 60).unwrap();
+        let scale = (centre(&t_before) - centre(&t_first)).norm()
+            / (centre(&truth[before]) - centre(&truth[first])).norm();
+        let in_map = |c: &Vector3<f64>| t_first.inverse().act(&(truth[first].act(c) * scale));
+        poses
+            .iter()
+            .filter(|(f, _)| *f >= 70)
+            .map(|(f, t)| (centre(t) - in_map(&centre(&truth[*f]))).norm() / scale)
+            .fold(0.0, f64::max)
+    };
+    let poses = explorer.frame_poses(&graph);
+    assert_eq!(poses.iter().filter(|(f, _)| *f >= 70).count(), 30);
+    let relocalised = worst(&poses);
+    let mut plain = MonoExplorer::new(camera, map_reuse(0.5));
+    let mut plain_graph = SlamGraph::new();
+    for (f, m) in frames.iter().enumerate() {
+        plain.process(&mut plain_graph, f, m).unwrap();
+    }
+    let never_lost = worst(&plain.frame_poses(&plain_graph));
+    println!(
+        "worst centre error after the gap: relocalised {relocalised:.4} m, never lost \
+         {never_lost:.4} m (4 m path)"
+    );
+    assert!(relocalised <= 1.5 * never_lost + 0.005, "{relocalised} m");
+}
+
+/// With the keyframe criterion of coverage (`keyframe_rotation`), a camera that walks back
+/// along a mapped path adds no keyframes: its view is covered by the keyframes of the way
+/// out, which measure the points it tracks. By distance from the last keyframe alone it
+/// adds as many on the way back as on the way out.
+#[test]
+fn a_camera_walking_back_over_its_map_adds_no_keyframes_where_keyframes_cover_its_view() {
+    let (_, out) = sideways(4, 80, 0.5);
+    // Back along the same poses (the same measurements in reverse order).
+    let frames: Vec<_> = out
+        .iter()
+        .chain(out.iter().rev().skip(1))
+        .cloned()
+        .collect();
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let added_back = |config: ExplorationConfig| {
+        let mut explorer = MonoExplorer::new(camera, config);
+        let mut graph = SlamGraph::new();
+        let mut back = 0;
+        for (f, m) in frames.iter().enumerate() {
+            let o = explorer
+                .process(&mut graph, f, m)
+                .unwrap_or_else(|e| panic!("frame {f}: {e}"));
+            back += usize::from(f >= 85 && o.keyframe.is_some());
+        }
+        back
+    };
+    let by_distance = added_back(map_reuse(0.5));
+    let by_coverage = added_back(ExplorationConfig {
+        keyframe_rotation: Some(10f64.to_radians()),
+        ..map_reuse(0.5)
+    });
+    println!("keyframes on the way back: {by_distance} by distance, {by_coverage} by coverage");
+    assert!(by_distance >= 5, "{by_distance}");
+    assert!(
+        by_coverage <= 1,
+        "{by_coverage} (by distance: {by_distance})"
+    );
+}
+
+/// Keyframes by parallax ([`KeyframeBaseline::Parallax`]): a camera sliding sideways gets
+/// about as many as by distance over the scene depth (the two measures agree for it), one
+/// driving forward far fewer (its points near the direction of travel gain no parallax),
+/// and both trajectories are recovered.
+#[test]
+fn keyframes_by_parallax_are_sparser_only_for_forward_motion() {
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let run = |(truth, frames): &Drive, baseline| {
+        let mut explorer = MonoExplorer::new(
+            camera,
+            ExplorationConfig {
+                keyframe_baseline: baseline,
+                keyframe_rotation: Some(10f64.to_radians()),
+                ..map_reuse(0.5)
+            },
+        );
+        let mut graph = SlamGraph::new();
+        for (f, m) in frames.iter().enumerate() {
+            explorer
+                .process(&mut graph, f, m)
+                .unwrap_or_else(|e| panic!("frame {f}: {e}"));
+        }
+        // Sim(3)-aligned centre error over the path.
+        let poses = explorer.frame_poses(&graph);
+        let est: Vec<Se3> = poses.iter().map(|(_, t)| *t).collect();
+        let gt: Vec<Se3> = poses.iter().map(|(f, _)| truth[*f]).collect();
+        let c = |t: &Se3| t.inverse().act(&Vector3::zeros());
+        let (e0, g0) = (c(&est[0]), c(&gt[0]));
+        let (e1, g1) = (c(est.last().unwrap()), c(gt.last().unwrap()));
+        let scale = (g1 - g0).norm() / (e1 - e0).norm();
+        let error = est
+            .iter()
+            .zip(&gt)
+            .map(|(e, g)| ((c(e) - e0) * scale - (c(g) - g0)).norm())
+            .fold(0.0, f64::max);
+        (explorer.map().keyframes.len(), error / (g1 - g0).norm())
+    };
+    let side = sideways(5, 100, 0.5);
+    let ahead = forward(5, 100, 0.5);
+    let (side_d, side_d_err) = run(&side, KeyframeBaseline::Distance);
+    let (side_p, side_p_err) = run(&side, KeyframeBaseline::Parallax);
+    let (ahead_d, ahead_d_err) = run(&ahead, KeyframeBaseline::Distance);
+    let (ahead_p, ahead_p_err) = run(&ahead, KeyframeBaseline::Parallax);
+    println!(
+        "keyframes sideways {side_d} by distance, {side_p} by parallax (worst error \
+         {side_d_err:.4} / {side_p_err:.4} of the path); forward {ahead_d}, {ahead_p} \
+         ({ahead_d_err:.4} / {ahead_p_err:.4})"
+    );
+    assert!(
+        (side_p as f64) >= 0.7 * side_d as f64 && (side_p as f64) <= 1.3 * side_d as f64,
+        "sideways: {side_p} by parallax, {side_d} by distance"
+    );
+    assert!(
+        (ahead_p as f64) <= 0.5 * ahead_d as f64,
+        "forward: {ahead_p} by parallax, {ahead_d} by distance"
+    );
+    for e in [side_d_err, side_p_err, ahead_d_err, ahead_p_err] {
+        assert!(e < 0.02, "{e}");
+    }
+}
+
+/// A correction that rescales the whole map by `a` (every keyframe `S ← S·diag(1/a)`, the
+/// points follow their anchors): the motion model follows it exactly, and exploring on
+/// gives the trajectory of the uncorrected run scaled by `a`.
+#[test]
+fn exploration_goes_on_in_a_corrected_map() {
+    let (_, frames) = sideways(2, 120, 0.5);
+    let a = 2.0;
+    let (plain, plain_graph) = explore(&frames, 0.5);
+    let (mut explorer, mut graph) = explore(&frames[..60], 0.5);
+    let before = explorer.predicted_pose(60).unwrap();
+    explorer
+        .correct_map(&mut graph, |g| {
+            let ids: Vec<KeyframeId> = g.keyframes().map(|(k, _)| k).collect();
+            for k in ids {
+                let s = g
+                    .pose(k)?
+                    .compose(&Sim3::new(lie::So3::identity(), Vector3::zeros(), 1.0 / a).unwrap());
+                g.set_pose(k, s)?;
+            }
+            Ok::<(), crate::map::GraphError>(())
+        })
+        .unwrap();
+    assert_eq!(explorer.num_filters(), 0);
+    let after = explorer.predicted_pose(60).unwrap();
+    assert!((centre(&after) - a * centre(&before)).norm() < 1e-9);
+    assert!((after.rotation().log() - before.rotation().log()).norm() < 1e-12);
+    for (f, m) in frames.iter().enumerate().skip(60) {
+        explorer.process(&mut graph, f, m).unwrap();
+    }
+    let (p, q) = (
+        plain.frame_poses(&plain_graph),
+        explorer.frame_poses(&graph),
+    );
+    assert_eq!(p.len(), q.len());
+    let path = (centre(&p[p.len() - 1].1) - centre(&p[0].1)).norm();
+    for ((f, x), (g, y)) in p.iter().zip(&q).filter(|((f, _), _)| *f >= 60) {
+        assert_eq!(f, g);
+        let error = (centre(y) / a - centre(x)).norm();
+        assert!(error < 0.02 * path, "{error} of a {path} path");
+    }
+}
+
+/// Bootstrap, tracking, keyframes, feature initialisation and window BA on a sideways
+/// motion: the trajectory is recovered up to the monocular scale, features are promoted to
+/// the map, and the same input gives the same output.
+#[test]
+fn sideways_exploration_recovers_the_trajectory_up_to_scale() {
+    let (truth, frames) = sideways(1, 120, 0.5);
+    let (explorer, graph) = explore(&frames, 0.5);
+    let poses = explorer.frame_poses(&graph);
+    assert!(poses.len() > 100, "{} frames tracked", poses.len());
+    assert!(explorer.map().keyframes.len() >= 10);
+    // Map points beyond the bootstrap's: promoted by the filters.
+    let promoted = graph
+        .points()
+        .filter(|(_, p)| p.anchor() != KeyframeId(0))
+        .count();
+    assert!(promoted > 50, "{promoted} promoted features");
+    // Camera centres relative to the first, best scale: small error.
+    let first = poses[0].0;
+    let c_true: Vec<Vector3<f64>> = poses
+        .iter()
+        .map(|(f, _)| centre(&truth[*f]) - centre(&truth[first]))
+        .collect();
+    let c_est: Vec<Vector3<f64>> = poses
+        .iter()
+        .map(|(_, t)| centre(t) - centre(&poses[0].1))
+        .collect();
+    let s = c_true
+        .iter()
+        .zip(&c_est)
+        .map(|(a, b)| a.dot(b))
+        .sum::<f64>()
+        / c_est.iter().map(|b| b.norm_squared()).sum::<f64>();
+    let rmse = (c_true
+        .iter()
+        .zip(&c_est)
+        .map(|(a, b)| (a - s * b).norm_squared())
+        .sum::<f64>()
+        / c_true.len() as f64)
+        .sqrt();
+    let length = (c_true.last().unwrap()).norm();
+    assert!(rmse < 0.01 * length, "rmse {rmse} over {length} m");
+    // Deterministic.
+    let (again, again_graph) = explore(&frames, 0.5);
+    assert_eq!(again.frame_poses(&again_graph), poses);
+    let points = |g: &SlamGraph<2>| -> Vec<_> {
+        g.points()
+            .map(|(p, pt)| (p, pt.anchor(), *pt.inverse_depth()))
+            .collect()
+    };
+    assert_eq!(points(&again_graph), points(&graph));
+    graph.check_invariants().unwrap();
+}
+
+#[test]
+fn frames_out_of_order_and_lost_tracking_are_errors() {
+    let (_, frames) = sideways(2, 30, 0.5);
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let mut explorer = MonoExplorer::new(camera, ExplorationConfig::default());
+    let mut graph = SlamGraph::new();
+    for (f, m) in frames.iter().enumerate() {
+        explorer.process(&mut graph, f, m).unwrap();
+    }
+    assert!(matches!(
+        explorer.process(&mut graph, 3, &frames[3]),
+        Err(ExplorationError::FrameOrder { .. })
+    ));
+    assert!(matches!(
+        explorer.process(&mut graph, 100, &[]),
+        Err(ExplorationError::TrackingLost { .. })
+    ));
+    // No parallax at all: the bootstrap gives up with a reason.
+    let mut still = MonoExplorer::new(
+        camera,
+        ExplorationConfig {
+            max_bootstrap_frames: 5,
+            ..ExplorationConfig::default()
+        },
+    );
+    let mut result = Ok(());
+    let mut graph = SlamGraph::new();
+    for f in 0..10 {
+        if let Err(e) = still.process(&mut graph, f, &frames[0]) {
+            result = Err(e);
+            break;
+        }
+    }
+    assert!(matches!(
+        result,
+        Err(ExplorationError::BootstrapFailed { .. })
+    ));
+}
