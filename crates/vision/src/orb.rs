@@ -335,7 +335,7 @@ fn avx512_popcount() -> bool {
 /// [`nearest_both_ways`] (ties to the lower index both ways; a test compares them).
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use super::{Descriptor, Nearest};
+    use super::{Descriptor, Nearest, nearer};
     use std::arch::x86_64::*;
 
     /// [`super::nearest_both_ways`] with the train descriptors in structure-of-arrays blocks
@@ -373,7 +373,7 @@ mod avx512 {
             for (i, q) in a.iter().enumerate() {
                 let qw = q.map(|w| _mm512_set1_epi64(w as i64));
                 let index = _mm512_set1_epi64(i as i64);
-                let (mut bi, mut b1, mut b2) = (usize::MAX, u32::MAX, u32::MAX);
+                let mut n: Nearest = (usize::MAX, u32::MAX, u32::MAX);
                 for block in 0..blocks {
                     let base = soa.as_ptr().add(32 * block);
                     let mut d = _mm512_setzero_si512();
@@ -393,25 +393,18 @@ mod avx512 {
                             index,
                         );
                     }
-                    if _mm512_reduce_min_epu64(d) < b2 as u64 {
+                    if _mm512_reduce_min_epu64(d) < n.2 as u64 {
                         _mm512_storeu_si512(lanes.as_mut_ptr().cast(), d);
                         for (lane, &d) in lanes.iter().enumerate() {
                             let j = 8 * block + lane;
                             if j >= b.len() {
                                 break;
                             }
-                            let d = d as u32;
-                            if d < b1 {
-                                b2 = b1;
-                                b1 = d;
-                                bi = j;
-                            } else if d < b2 {
-                                b2 = d;
-                            }
+                            nearer(&mut n, j, d as u32);
                         }
                     }
                 }
-                out.push((bi, b1, b2));
+                out.push(n);
             }
         }
         let back = (0..b.len())
@@ -488,6 +481,17 @@ fn accept(
 /// A descriptor's nearest neighbour: its index and distance, and the second-nearest distance.
 type Nearest = (usize, u32, u32);
 
+/// Takes train descriptor `j` at distance `d` into the two nearest so far (a tie keeps the
+/// earlier, lower index).
+#[inline(always)]
+fn nearer(n: &mut Nearest, j: usize, d: u32) {
+    if d < n.1 {
+        *n = (j, d, n.1);
+    } else if d < n.2 {
+        n.2 = d;
+    }
+}
+
 /// [`nearest`] from `a` into `b`, and the nearest of `a` for each of `b` (its index), from one
 /// pass over the distance matrix: cross-checked matching computes each distance once, not
 /// twice. Ties go to the lower index both ways, as [`nearest`]'s.
@@ -496,21 +500,15 @@ fn nearest_both_ways(a: &[Descriptor], b: &[Descriptor]) -> (Vec<Nearest>, Vec<(
     let mut out = Vec::with_capacity(a.len());
     let mut back = vec![(usize::MAX, u32::MAX); b.len()];
     for (i, q) in a.iter().enumerate() {
-        let (mut bi, mut b1, mut b2) = (usize::MAX, u32::MAX, u32::MAX);
+        let mut n: Nearest = (usize::MAX, u32::MAX, u32::MAX);
         for j in 0..b.len() {
             let d = hamming(q, &b[j]);
-            if d < b1 {
-                b2 = b1;
-                b1 = d;
-                bi = j;
-            } else if d < b2 {
-                b2 = d;
-            }
+            nearer(&mut n, j, d);
             if d < back[j].1 {
                 back[j] = (i, d);
             }
         }
-        out.push((bi, b1, b2));
+        out.push(n);
     }
     (out, back)
 }
@@ -523,18 +521,11 @@ fn nearest_both_ways(a: &[Descriptor], b: &[Descriptor]) -> (Vec<Nearest>, Vec<(
 fn nearest(a: &[Descriptor], b: &[Descriptor]) -> Vec<Nearest> {
     let mut out = Vec::with_capacity(a.len());
     for q in a {
-        let (mut bi, mut b1, mut b2) = (usize::MAX, u32::MAX, u32::MAX);
+        let mut n: Nearest = (usize::MAX, u32::MAX, u32::MAX);
         for (j, t) in b.iter().enumerate() {
-            let d = hamming(q, t);
-            if d < b1 {
-                b2 = b1;
-                b1 = d;
-                bi = j;
-            } else if d < b2 {
-                b2 = d;
-            }
+            nearer(&mut n, j, hamming(q, t));
         }
-        out.push((bi, b1, b2));
+        out.push(n);
     }
     out
 }
