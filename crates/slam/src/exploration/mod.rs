@@ -932,6 +932,11 @@ impl MonoExplorer {
                         .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
                     dwo.optimise(graph, &self.camera)
                         .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+                    // What the optimum does not explain leaves the map, as after the BA.
+                    if self.config.remove_outliers {
+                        let local = self.local_keyframes(graph, k);
+                        self.remove_unexplained(graph, k, &local)?;
+                    }
                     // The filters' anchors moved with their keyframes.
                     let anchors: HashSet<usize> =
                         self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
@@ -1207,6 +1212,56 @@ impl MonoExplorer {
         }
     }
 
+    /// Removes the measurements `outliers` (keyframe, point) from the map; a point no longer
+    /// measured by new keyframe `k` (or gone) is no longer tracked.
+    fn drop_measurements(
+        &mut self,
+        graph: &mut SlamGraph<2>,
+        k: KeyframeId,
+        outliers: Vec<(KeyframeId, PointId)>,
+    ) -> Result<(), ExplorationError> {
+        for (kf, p) in outliers {
+            graph
+                .remove_observation(kf, p)
+                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            if kf == k || graph.point(p).is_none() {
+                self.active.retain(|_, q| *q != p);
+            }
+        }
+        Ok(())
+    }
+
+    /// Removes the measurements by `keyframes` that the map does not explain (beyond the
+    /// χ²(2) 95 % gate at σ, the window BA's) of points that other keyframes measure too: the
+    /// double window's outlier removal (`remove_outliers`), on the keyframes the BA would
+    /// have optimised.
+    fn remove_unexplained(
+        &mut self,
+        graph: &mut SlamGraph<2>,
+        k: KeyframeId,
+        keyframes: &[KeyframeId],
+    ) -> Result<(), ExplorationError> {
+        let gate = lsq::chi2_quantile(2, 0.95) * self.config.sigma * self.config.sigma;
+        let mut outliers: Vec<(KeyframeId, PointId)> = Vec::new();
+        for &w in keyframes {
+            let t = rigid_pose(graph, w);
+            for (&p, z) in graph.keyframe(w).expect("in the map").observations() {
+                if graph.point(p).is_none_or(|pt| pt.observers().len() < 2) {
+                    continue;
+                }
+                let Ok(y) = graph.point_world(p) else {
+                    continue;
+                };
+                let explained = CameraModel::project(&self.camera, &t.act(&y))
+                    .is_ok_and(|u| (u - z).norm_squared() <= gate);
+                if !explained {
+                    outliers.push((w, p));
+                }
+            }
+        }
+        self.drop_measurements(graph, k, outliers)
+    }
+
     /// The keyframe BA of new keyframe `k` (§3.3.3) on Euclidean points: the window's keyframes
     /// ([`Self::local_keyframes`]) and the points they measure are optimised; up to
     /// `fixed_observers` other keyframes measuring those points join as fixed poses, and
@@ -1368,15 +1423,7 @@ impl MonoExplorer {
                     .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
             }
         }
-        for (kf, p) in outliers {
-            graph
-                .remove_observation(kf, p)
-                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            if kf == k || graph.point(p).is_none() {
-                self.active.retain(|_, q| *q != p);
-            }
-        }
-        Ok(())
+        self.drop_measurements(graph, k, outliers)
     }
 }
 

@@ -107,9 +107,9 @@ fn map_reuse(sigma: f64) -> ExplorationConfig {
 
 /// A track that jumps to another corner (15 px off its point from frame 60 on, across the
 /// direction of motion, so no one point explains its measurements before and after): with
-/// outliers removed, the map keeps only measurements of the point that agree with it (all
-/// within 3σ of its projection); without, the keyframes keep both and contradict each
-/// other.
+/// outliers removed, after the keyframe BA or the double window, the map keeps only
+/// measurements of the point that agree with it (all within 3σ of its projection); without,
+/// the keyframes keep both and contradict each other.
 #[test]
 fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
     let (_, mut frames) = sideways(3, 100, 0.5);
@@ -127,8 +127,16 @@ fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
         }
     }
     let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let double_window = ExplorationConfig {
+        double_window: Some(crate::dwo::DwoParams {
+            kernel: Some(RobustKernel::Huber(2.0)),
+            ..crate::dwo::DwoParams::new(20, 100, 500.0, 0.5)
+        }),
+        ..map_reuse(0.5)
+    };
     for (config, removed) in [
         (map_reuse(0.5), true),
+        (double_window, true),
         (ExplorationConfig::default(), false),
     ] {
         let config = ExplorationConfig {
