@@ -309,6 +309,8 @@ pub struct FrameOutcome {
     pub filters: usize,
     /// While bootstrapping: why this frame did not start the map (e.g. too little parallax).
     pub waiting: Option<String>,
+    /// The keyframe's double window optimisation, with `double_window`.
+    pub optimisation: Option<crate::dwo::DwoStats>,
 }
 
 /// Why exploration stopped.
@@ -633,6 +635,7 @@ impl MonoExplorer {
                     started: 0,
                     filters: 0,
                     waiting: Some("the first frame".into()),
+                    optimisation: None,
                 })
             }
             State::Bootstrapping {
@@ -670,6 +673,7 @@ impl MonoExplorer {
                             started: 0,
                             filters: 0,
                             waiting: Some(reason),
+                            optimisation: None,
                         })
                     }
                 }
@@ -847,6 +851,7 @@ impl MonoExplorer {
             started,
             filters: self.filters.len(),
             waiting: None,
+            optimisation: None,
         })
     }
 
@@ -921,6 +926,7 @@ impl MonoExplorer {
         }
         // 5. In a keyframe: new features, sliding-window BA.
         let mut started = 0;
+        let mut optimisation = None;
         let mut pose = pose;
         if let Some(k) = keyframe {
             started = self.start_features(graph, k, frame, measurements);
@@ -930,8 +936,10 @@ impl MonoExplorer {
                     crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
                         .and_then(|_| graph.set_reference(k))
                         .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-                    dwo.optimise(graph, &self.camera)
-                        .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+                    optimisation = Some(
+                        dwo.optimise(graph, &self.camera)
+                            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?,
+                    );
                     // What the optimum does not explain leaves the map, as after the BA.
                     if self.config.remove_outliers {
                         let local = self.local_keyframes(graph, k);
@@ -966,6 +974,7 @@ impl MonoExplorer {
             started,
             filters: self.filters.len(),
             waiting: None,
+            optimisation,
         })
     }
 

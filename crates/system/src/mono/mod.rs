@@ -345,6 +345,9 @@ impl MonoSensor {
         relocalised: Option<Relocalisation>,
         explored: Duration,
     ) -> Step {
+        if let Some(stats) = o.optimisation {
+            ctx.optimisations.push(stats);
+        }
         let explorer = self.explorer.as_ref().expect("explored");
         let first = explorer.map_keyframes().count() <= 2;
         let last = explorer.map_keyframes().last();

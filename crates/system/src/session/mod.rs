@@ -204,6 +204,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
                 loops: &mut self.loops,
                 warnings: &mut self.warnings,
                 retired: &mut self.retired,
+                optimisations: &mut self.optimisations,
             },
         )
     }

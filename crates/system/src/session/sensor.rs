@@ -242,6 +242,8 @@ pub(crate) struct Context<'a, L: Stage<N>, C: DwoCamera<N>, const N: usize> {
     /// Keyframes culled (`slam::mapping::culling`): the session moves what it kept relative
     /// to them onto their heirs.
     pub retired: &'a mut Vec<Retired>,
+    /// The double window optimisations a sensor ran itself (the monocular exploration's).
+    pub optimisations: &'a mut Vec<DwoStats>,
 }
 
 impl<L: Stage<N>, C: DwoCamera<N>, const N: usize> Context<'_, L, C, N> {
