@@ -704,10 +704,10 @@ impl Sensor<3> for DepthSensor {
                 &ctx.graph.read(),
             );
             let camera = *self.front.camera();
-            let stats = global.optimise_shared(ctx.graph, &camera)?;
+            let stats = global.optimise(&**ctx.graph, &camera)?;
             ctx.timings
                 .record("optimise: final pose graph (gDWO)", stats.total());
-            let stats = full.optimise_shared(ctx.graph, &camera)?;
+            let stats = full.optimise(&**ctx.graph, &camera)?;
             ctx.timings
                 .record("optimise: final bundle adjustment", stats.total());
         }

@@ -286,7 +286,7 @@ fn tracking_reads_the_graph_while_the_optimiser_runs() {
     let mut dwo = DoubleWindowOptimiser::new(params);
     std::thread::scope(|s| {
         let optimiser = s.spawn(|| {
-            let r = dwo.optimise_shared(&shared, &cam);
+            let r = dwo.optimise(&shared, &cam);
             running.store(false, Ordering::SeqCst);
             r
         });
@@ -399,7 +399,7 @@ fn a_loop_correction_during_an_optimisation_supersedes_its_result() {
         );
     }
     // The next optimisation re-plans from the corrected graph and succeeds.
-    let stats = dwo.optimise_shared(&shared, &cam).unwrap();
+    let stats = dwo.optimise(&shared, &cam).unwrap();
     assert!(stats.cost_after <= stats.cost_before);
     assert_eq!(
         stats.write_back.poses,

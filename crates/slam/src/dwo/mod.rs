@@ -46,7 +46,7 @@ use crate::factors::{
     AnchoredLinearization, AnchoredObservation, AnchoredPose, InverseDepthObservation, Projector,
     inverse_depth_to_point, linearize_anchored,
 };
-use crate::map::{BfsTree, KeyframeId, PointId, SharedGraph, SlamGraph, Version};
+use crate::map::{BfsTree, GraphAccess, KeyframeId, PointId, SlamGraph, Version};
 use lie::{LieGroup, LogJacobian, Sim3, log_jacobian_factors};
 use lsq::{
     Factor, Information, Jacobians, Manifold, Problem, RobustKernel, SolverOptions, Values, Var,
@@ -1001,30 +1001,14 @@ impl DoubleWindowOptimiser {
         }
     }
 
-    /// One double window optimisation around the graph's reference keyframe.
+    /// One double window optimisation around the graph's reference keyframe: plans and copies
+    /// its inputs under a read lock, builds and optimises with no lock held, writes back under a
+    /// write lock (of a shared graph; a graph the caller owns is simply read and written, see
+    /// [`GraphAccess`]). Between plan and write-back another thread may have changed the
+    /// graph; [`apply`](Self::apply) keeps what it changed.
     pub fn optimise<P: Projector<N> + Clone, const N: usize>(
         &mut self,
-        graph: &mut SlamGraph<N>,
-        projector: &P,
-    ) -> Result<DwoStats, DwoError> {
-        let t = Instant::now();
-        let plan = self.plan(graph)?;
-        let inputs = self.inputs(graph, &plan)?;
-        let mut dwo = self.build(&inputs, &plan, projector)?;
-        let mut stats = Self::stats(&plan, &dwo);
-        stats.time_setup = t.elapsed();
-        self.solve(&mut dwo, &mut stats)?;
-        let t = Instant::now();
-        stats.write_back = self.apply(graph, &plan, &dwo)?;
-        stats.time_apply = t.elapsed();
-        Ok(stats)
-    }
-
-    /// [`optimise`](Self::optimise) on a shared graph: plans and copies its inputs under a
-    /// read lock, builds and optimises with no lock held, writes back under a write lock.
-    pub fn optimise_shared<P: Projector<N> + Clone, const N: usize>(
-        &mut self,
-        graph: &SharedGraph<N>,
+        mut graph: impl GraphAccess<N>,
         projector: &P,
     ) -> Result<DwoStats, DwoError> {
         let t = Instant::now();

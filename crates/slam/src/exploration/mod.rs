@@ -51,8 +51,9 @@ mod resume;
 mod window;
 
 use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
+use crate::dwo::DwoStats;
 use crate::factors::point_to_inverse_depth;
-use crate::map::{KeyframeId, PointId, SlamGraph};
+use crate::map::{GraphAccess, KeyframeId, PointId, SlamGraph};
 use crate::tracking::{MotionOnlyOptions, motion_only_ba};
 use feature_init::{FeatureFilters, FeatureId, FeatureInitConfig};
 use geom::bootstrap::{BootstrapConfig, bootstrap_pose};
@@ -310,7 +311,7 @@ pub struct FrameOutcome {
     /// While bootstrapping: why this frame did not start the map (e.g. too little parallax).
     pub waiting: Option<String>,
     /// The keyframe's double window optimisation, with `double_window`.
-    pub optimisation: Option<crate::dwo::DwoStats>,
+    pub optimisation: Option<DwoStats>,
 }
 
 /// Why exploration stopped.
@@ -608,10 +609,12 @@ impl MonoExplorer {
         self.map
     }
 
-    /// Processes one frame's measurements `(track, z)` (pixels).
+    /// Processes one frame's measurements `(track, z)` (pixels) in `graph` — a graph the
+    /// caller owns, or a shared one whose lock is held for each step and not while a keyframe's
+    /// window is solved ([`GraphAccess`]).
     pub fn process(
         &mut self,
-        graph: &mut SlamGraph<2>,
+        mut graph: impl GraphAccess<2>,
         frame: usize,
         measurements: &[(TrackId, Vector2<f64>)],
     ) -> Result<FrameOutcome, ExplorationError> {
@@ -651,7 +654,14 @@ impl MonoExplorer {
                     };
                     return Err(ExplorationError::FrameOrder { frame, last: first });
                 }
-                match self.bootstrap(graph, first, &first_measurements, frame, &measurements) {
+                let bootstrapped = self.bootstrap(
+                    &mut graph.write(),
+                    first,
+                    &first_measurements,
+                    frame,
+                    &measurements,
+                );
+                match bootstrapped {
                     Ok(outcome) => Ok(outcome),
                     Err(reason) => {
                         if tried + 1 >= self.config.max_bootstrap_frames {
@@ -694,7 +704,14 @@ impl MonoExplorer {
                         last: last_frame,
                     });
                 }
-                self.track(graph, frame, &measurements, last_frame, last_pose, velocity)
+                self.track(
+                    &mut graph,
+                    frame,
+                    &measurements,
+                    last_frame,
+                    last_pose,
+                    velocity,
+                )
             }
         }
     }
@@ -855,7 +872,40 @@ impl MonoExplorer {
         })
     }
 
+    /// A frame tracked: steps 1–4 and a keyframe's registration under one write lock, its
+    /// window's optimisation ([`MonoExplorer::optimise_keyframe`]) with the lock taken per step.
     fn track(
+        &mut self,
+        graph: &mut impl GraphAccess<2>,
+        frame: usize,
+        measurements: &[(TrackId, Vector2<f64>)],
+        last_frame: usize,
+        last_pose: Se3,
+        velocity: Se3,
+    ) -> Result<FrameOutcome, ExplorationError> {
+        let mut tracked = self.track_frame(
+            &mut graph.write(),
+            frame,
+            measurements,
+            last_frame,
+            last_pose,
+            velocity,
+        )?;
+        if let Some(k) = tracked.keyframe {
+            tracked.optimisation = self.optimise_keyframe(graph, k)?;
+            let pose = rigid_pose(&graph.read(), k);
+            tracked.camera_from_world = Some(pose);
+            if let Some(last) = self.frame_poses.last_mut() {
+                last.1 = pose;
+            }
+            if let State::Tracking { last_pose, .. } = &mut self.state {
+                *last_pose = pose;
+            }
+        }
+        Ok(tracked)
+    }
+
+    fn track_frame(
         &mut self,
         graph: &mut SlamGraph<2>,
         frame: usize,
@@ -924,41 +974,17 @@ impl MonoExplorer {
             let keep: HashSet<FeatureId> = self.filter_of_track.values().copied().collect();
             self.filters.retain(|id, _| keep.contains(&id));
         }
-        // 5. In a keyframe: new features, sliding-window BA.
+        // 5. In a keyframe: new features (its window is optimised next, `track`), and for
+        // the double window its place in the covisibility graph, as the reference.
         let mut started = 0;
-        let mut optimisation = None;
-        let mut pose = pose;
         if let Some(k) = keyframe {
             started = self.start_features(graph, k, frame, measurements);
-            match &mut self.double_window {
-                Some(dwo) if !self.localise => {
-                    let previous = KeyframeId::from_index(k.index().saturating_sub(1));
-                    crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
-                        .and_then(|_| graph.set_reference(k))
-                        .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-                    optimisation = Some(
-                        dwo.optimise(graph, &self.camera)
-                            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?,
-                    );
-                    // What the optimum does not explain leaves the map, as after the BA.
-                    if self.config.remove_outliers {
-                        let local = self.local_keyframes(graph, k);
-                        self.remove_unexplained(graph, k, &local)?;
-                    }
-                    // The filters' anchors moved with their keyframes.
-                    let anchors: HashSet<usize> =
-                        self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
-                    for a in anchors {
-                        if let Some(&ka) = self.keyframe_of_frame.get(&a) {
-                            let t = rigid_pose(graph, ka);
-                            self.filters.set_anchor_pose(a, t);
-                        }
-                    }
-                }
-                // A temporary keyframe's window moves only temporary keyframes and points.
-                _ => self.window_ba(graph, k)?,
+            if self.double_window.is_some() && !self.localise {
+                let previous = KeyframeId::from_index(k.index().saturating_sub(1));
+                crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
+                    .and_then(|_| graph.set_reference(k))
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
             }
-            pose = rigid_pose(graph, k);
         }
         self.frame_poses.push((frame, pose));
         self.state = State::Tracking {
@@ -974,8 +1000,41 @@ impl MonoExplorer {
             started,
             filters: self.filters.len(),
             waiting: None,
-            optimisation,
+            optimisation: None,
         })
+    }
+
+    /// Optimises new keyframe `k`'s window: the double window (`double_window`, not while
+    /// localising) or the keyframe BA ([`MonoExplorer::window_ba`]; a temporary keyframe's
+    /// window moves only temporary keyframes and points). Either copies its problem out under
+    /// a read lock, solves with no lock held and writes back under a write lock.
+    fn optimise_keyframe(
+        &mut self,
+        graph: &mut impl GraphAccess<2>,
+        k: KeyframeId,
+    ) -> Result<Option<DwoStats>, ExplorationError> {
+        let Some(dwo) = self.double_window.as_mut().filter(|_| !self.localise) else {
+            self.window_ba(graph, k)?;
+            return Ok(None);
+        };
+        let stats = dwo
+            .optimise(&mut *graph, &self.camera)
+            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+        let mut g = graph.write();
+        // What the optimum does not explain leaves the map, as after the BA.
+        if self.config.remove_outliers {
+            let local = self.local_keyframes(&g, k);
+            self.remove_unexplained(&mut g, k, &local)?;
+        }
+        // The filters' anchors moved with their keyframes.
+        let anchors: HashSet<usize> = self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
+        for a in anchors {
+            if let Some(&ka) = self.keyframe_of_frame.get(&a) {
+                let t = rigid_pose(&g, ka);
+                self.filters.set_anchor_pose(a, t);
+            }
+        }
+        Ok(Some(stats))
     }
 
     /// Whether no keyframe covers the view of a camera at `pose` looking at a scene

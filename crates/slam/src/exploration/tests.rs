@@ -1,6 +1,7 @@
 //! The exploration's tests: simulated cameras and their tracks.
 
 use super::*;
+use crate::map::SharedGraph;
 use crate::pose_graph::rigid_from_similarity;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -506,4 +507,98 @@ fn frames_out_of_order_and_lost_tracking_are_errors() {
         result,
         Err(ExplorationError::BootstrapFailed { .. })
     ));
+}
+
+/// A graph that logs how the exploration takes it: `w` for a write, `r` for a read.
+struct Logged<'a> {
+    graph: &'a mut SlamGraph<2>,
+    log: String,
+}
+
+impl GraphAccess<2> for Logged<'_> {
+    fn read(&mut self) -> impl std::ops::Deref<Target = SlamGraph<2>> + '_ {
+        self.log.push('r');
+        &*self.graph
+    }
+
+    fn write(&mut self) -> impl std::ops::DerefMut<Target = SlamGraph<2>> + '_ {
+        self.log.push('w');
+        &mut *self.graph
+    }
+}
+
+/// A keyframe's window — the keyframe BA or the double window — is solved with no lock on
+/// the graph: a frame is tracked and a keyframe registered under one write, the window copied
+/// out under a read and written back under a write (so that the loop closer and a viewer read
+/// the graph meanwhile); on a shared graph, with another thread reading it all along, the map
+/// is the same as on a graph the explorer owns.
+#[test]
+fn a_keyframe_window_is_solved_with_no_lock_held() {
+    let (_, frames) = sideways(3, 60, 0.5);
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let double_window = ExplorationConfig {
+        double_window: Some(crate::dwo::DwoParams::new(10, 20, 500.0, 0.5)),
+        ..map_reuse(0.5)
+    };
+    for config in [map_reuse(0.5), double_window] {
+        let dwo = config.double_window.is_some();
+        let mut owned = SlamGraph::new();
+        let mut explorer = MonoExplorer::new(camera, config.clone());
+        let mut keyframes = 0;
+        for (f, m) in frames.iter().enumerate() {
+            let mut logged = Logged {
+                graph: &mut owned,
+                log: String::new(),
+            };
+            let outcome = explorer.process(&mut logged, f, m).unwrap();
+            let after_bootstrap = explorer.map().keyframes.len() > 2;
+            match outcome.keyframe {
+                Some(_) if after_bootstrap => {
+                    keyframes += 1;
+                    // The tracking's write; the window read, solved, written back (the double
+                    // window then removes outliers and moves the filters' anchors under one
+                    // more write); the keyframe's new pose read.
+                    let expected = if dwo { "wrwwr" } else { "wrwr" };
+                    assert_eq!(logged.log, expected, "frame {f}");
+                }
+                None if outcome.camera_from_world.is_some() => {
+                    assert_eq!(logged.log, "w", "frame {f}")
+                }
+                _ => {}
+            }
+        }
+        assert!(keyframes >= 5, "{keyframes} keyframes");
+        let shared = SharedGraph::new(SlamGraph::new());
+        let mut explorer = MonoExplorer::new(camera, config);
+        let done = std::sync::atomic::AtomicBool::new(false);
+        let reads = std::thread::scope(|s| {
+            let reader = s.spawn(|| {
+                let mut reads = 0usize;
+                while !done.load(std::sync::atomic::Ordering::SeqCst) {
+                    reads += shared.read().num_points().min(1);
+                    std::thread::yield_now();
+                }
+                reads
+            });
+            for (f, m) in frames.iter().enumerate() {
+                explorer.process(&shared, f, m).unwrap();
+            }
+            done.store(true, std::sync::atomic::Ordering::SeqCst);
+            reader.join().unwrap()
+        });
+        assert!(reads > 0, "the reader never saw the map");
+        let points = |g: &SlamGraph<2>| -> Vec<_> {
+            g.points()
+                .map(|(p, pt)| (p, pt.anchor(), *pt.inverse_depth()))
+                .collect()
+        };
+        let shared = shared.into_inner();
+        assert_eq!(points(&shared), points(&owned), "double window: {dwo}");
+        let poses = |g: &SlamGraph<2>| -> Vec<_> {
+            g.keyframes()
+                .map(|(k, kf)| (k, *kf.camera_from_world()))
+                .collect()
+        };
+        assert_eq!(poses(&shared), poses(&owned), "double window: {dwo}");
+    }
 }

@@ -5,7 +5,7 @@
 use super::{ExplorationError, LocalWindow, MonoExplorer, rigid_pose, solver};
 use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
 use crate::factors::point_to_inverse_depth;
-use crate::map::{KeyframeId, PointId, SlamGraph};
+use crate::map::{GraphAccess, KeyframeId, PointId, SlamGraph};
 use geom::CameraModel;
 use lie::{LieGroup, Se3, Sim3};
 use lsq::RobustKernel;
@@ -112,11 +112,95 @@ impl MonoExplorer {
     /// the window to the trajectory and fix the scale gauge). Points measured once in all
     /// are held fixed. The points are written back anchored in their (possibly moved) anchor
     /// keyframes.
+    ///
+    /// The problem is copied out under a read lock of `graph`, solved with no lock held and
+    /// written back under a write lock ([`GraphAccess`]).
     pub(super) fn window_ba(
         &mut self,
-        graph: &mut SlamGraph<2>,
+        graph: &mut impl GraphAccess<2>,
         k: KeyframeId,
     ) -> Result<(), ExplorationError> {
+        let WindowProblem {
+            local,
+            window,
+            count,
+            held,
+            observations,
+            mut ba,
+        } = self.window_problem(&graph.read(), k)?;
+        ba.problem
+            .optimise(&solver(self.config.ba_iterations))
+            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+        let mut graph = graph.write();
+        let graph = &mut *graph;
+        let (poses, points) = (ba.camera_from_world(), ba.points_world());
+        for (&k, t) in local.iter().zip(&poses) {
+            graph
+                .set_pose(k, Sim3::from_se3(t))
+                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            self.filters
+                .set_anchor_pose(self.map.keyframes[k.index()].frame, *t);
+        }
+        // Measurements the optimum does not explain leave the map (after the points are
+        // written back, below).
+        let mut outliers: Vec<(KeyframeId, PointId)> = Vec::new();
+        if self.config.remove_outliers {
+            let gate = lsq::chi2_quantile(2, 0.95) * self.config.sigma * self.config.sigma;
+            let ids: Vec<PointId> = count.keys().copied().collect();
+            let all_poses = ba.camera_from_world();
+            for o in &observations {
+                let p = ids[o.point];
+                if count[&p] < 2 || (self.localise && !self.temporary.contains(&window[o.pose])) {
+                    continue;
+                }
+                let x = all_poses[o.pose].act(&points[o.point]);
+                let explained = CameraModel::project(&self.camera, &x)
+                    .is_ok_and(|z| (z - o.measurement).norm_squared() <= gate);
+                if !explained {
+                    outliers.push((window[o.pose], p));
+                }
+            }
+        }
+        for (&p, y) in count.keys().zip(&points) {
+            if held.contains(&p) {
+                continue;
+            }
+            let anchor = graph.point(p).expect("in the map").anchor();
+            let x = graph.pose(anchor).expect("in the map").act(y);
+            // A point the window pushed behind its anchor keeps its previous position.
+            if let Some(psi) = point_to_inverse_depth(&x) {
+                graph
+                    .set_inverse_depth(p, psi)
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            }
+        }
+        self.drop_measurements(graph, k, outliers)
+    }
+}
+
+/// The keyframe BA's problem as [`MonoExplorer::window_problem`] copies it out of the graph.
+struct WindowProblem {
+    /// The keyframes optimised, oldest first.
+    local: Vec<KeyframeId>,
+    /// `local`, then the fixed observers: the BA's poses.
+    window: Vec<KeyframeId>,
+    /// The window's points, with how many of its keyframes measure each.
+    count: BTreeMap<PointId, usize>,
+    /// Points held fixed and not written back (a loaded map's, while localising).
+    held: HashSet<PointId>,
+    /// The BA's observations, indexing `window` and `count`.
+    observations: Vec<Observation<2>>,
+    /// The problem, its points' fixings set.
+    ba: BundleAdjustment,
+}
+
+impl MonoExplorer {
+    /// Builds the keyframe BA of new keyframe `k` from `graph` (see [`MonoExplorer::window_ba`]).
+    fn window_problem(
+        &self,
+        graph: &SlamGraph<2>,
+        k: KeyframeId,
+    ) -> Result<WindowProblem, ExplorationError> {
         let mut local = self.local_keyframes(graph, k);
         // Localising, only the temporary keyframes and their points move: the loaded map's
         // keyframes that measure the window's points are held as its fixed observers, and its
@@ -222,50 +306,13 @@ impl MonoExplorer {
                 ba.problem.set_fixed(v.key(), true);
             }
         }
-        ba.problem
-            .optimise(&solver(self.config.ba_iterations))
-            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        let (poses, points) = (ba.camera_from_world(), ba.points_world());
-        for (&k, t) in local.iter().zip(&poses) {
-            graph
-                .set_pose(k, Sim3::from_se3(t))
-                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            self.filters
-                .set_anchor_pose(self.map.keyframes[k.index()].frame, *t);
-        }
-        // Measurements the optimum does not explain leave the map (after the points are
-        // written back, below).
-        let mut outliers: Vec<(KeyframeId, PointId)> = Vec::new();
-        if self.config.remove_outliers {
-            let gate = lsq::chi2_quantile(2, 0.95) * self.config.sigma * self.config.sigma;
-            let ids: Vec<PointId> = count.keys().copied().collect();
-            let all_poses = ba.camera_from_world();
-            for o in &observations {
-                let p = ids[o.point];
-                if count[&p] < 2 || (self.localise && !self.temporary.contains(&window[o.pose])) {
-                    continue;
-                }
-                let x = all_poses[o.pose].act(&points[o.point]);
-                let explained = CameraModel::project(&self.camera, &x)
-                    .is_ok_and(|z| (z - o.measurement).norm_squared() <= gate);
-                if !explained {
-                    outliers.push((window[o.pose], p));
-                }
-            }
-        }
-        for (&p, y) in count.keys().zip(&points) {
-            if held.contains(&p) {
-                continue;
-            }
-            let anchor = graph.point(p).expect("in the map").anchor();
-            let x = graph.pose(anchor).expect("in the map").act(y);
-            // A point the window pushed behind its anchor keeps its previous position.
-            if let Some(psi) = point_to_inverse_depth(&x) {
-                graph
-                    .set_inverse_depth(p, psi)
-                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            }
-        }
-        self.drop_measurements(graph, k, outliers)
+        Ok(WindowProblem {
+            local,
+            window,
+            count,
+            held,
+            observations,
+            ba,
+        })
     }
 }

@@ -19,4 +19,4 @@ pub use graph::{
 };
 pub use ids::{IdInt, KeyframeId, PointId};
 pub use maps::MapJoin;
-pub use shared::SharedGraph;
+pub use shared::{GraphAccess, SharedGraph};

@@ -50,6 +50,48 @@ impl<const N: usize> SharedGraph<N> {
     }
 }
 
+/// A graph that a stage reads and changes step by step: a [`SlamGraph`] one thread owns, or a
+/// [`SharedGraph`] whose lock is taken for each step and released between them — so that a
+/// stage that solves (a window's bundle adjustment, a double window) holds no lock while it
+/// solves, and the one code path serves both (the simulations and tests own their graph, the
+/// live system shares it). `&mut G` is one too.
+pub trait GraphAccess<const N: usize> {
+    /// The graph to read (a read guard for a shared graph: hold it briefly).
+    fn read(&mut self) -> impl std::ops::Deref<Target = SlamGraph<N>> + '_;
+    /// The graph to change (a write guard for a shared graph: hold it briefly).
+    fn write(&mut self) -> impl std::ops::DerefMut<Target = SlamGraph<N>> + '_;
+}
+
+impl<const N: usize> GraphAccess<N> for SlamGraph<N> {
+    fn read(&mut self) -> impl std::ops::Deref<Target = SlamGraph<N>> + '_ {
+        &*self
+    }
+
+    fn write(&mut self) -> impl std::ops::DerefMut<Target = SlamGraph<N>> + '_ {
+        self
+    }
+}
+
+impl<const N: usize> GraphAccess<N> for &SharedGraph<N> {
+    fn read(&mut self) -> impl std::ops::Deref<Target = SlamGraph<N>> + '_ {
+        SharedGraph::read(self)
+    }
+
+    fn write(&mut self) -> impl std::ops::DerefMut<Target = SlamGraph<N>> + '_ {
+        SharedGraph::write(self)
+    }
+}
+
+impl<const N: usize, G: GraphAccess<N>> GraphAccess<N> for &mut G {
+    fn read(&mut self) -> impl std::ops::Deref<Target = SlamGraph<N>> + '_ {
+        (**self).read()
+    }
+
+    fn write(&mut self) -> impl std::ops::DerefMut<Target = SlamGraph<N>> + '_ {
+        (**self).write()
+    }
+}
+
 thread_local! {
     /// This thread's waits for shared locks while it records them ([`record_lock_waits`]).
     static WAITS: RefCell<Option<Vec<Duration>>> = const { RefCell::new(None) };

@@ -284,7 +284,7 @@ impl MonoSensor {
         }
         let outcome = {
             let explorer = self.explorer.as_mut().expect("made above");
-            explorer.process(&mut ctx.graph.write(), frame.index, &measurements)
+            explorer.process(&**ctx.graph, frame.index, &measurements)
         };
         let explored = t.elapsed();
         ctx.timings.record("mono: exploration", explored);

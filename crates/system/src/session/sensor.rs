@@ -172,7 +172,7 @@ impl<C: DwoCamera<N>, const N: usize> Stage<N> for Optimise<C> {
             return;
         }
         for _attempt in 0..3 {
-            match self.optimiser.optimise_shared(graph, &self.camera) {
+            match self.optimiser.optimise(graph, &self.camera) {
                 Ok(s) => return out.push(Optimised::Stats(s)),
                 Err(DwoError::Superseded { .. }) => continue,
                 // A new map whose first keyframe failed: nothing to optimise around.
