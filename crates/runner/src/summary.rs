@@ -132,13 +132,23 @@ pub(crate) fn summary_extra(
         "optimisation".into(),
         json!({"count": dwo.len(), "median_ms": median(&dwo), "max_ms": dwo.iter().copied().fold(0.0, f64::max)}),
     );
-    let waits = &result.lock_waits;
     let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    let waits = &result.lock_waits;
     extra.insert(
         "tracking_lock_waits".into(),
         json!({"locks": waits.count, "median_ms": ms(waits.median), "p99_ms": ms(waits.p99),
             "max_ms": ms(waits.max), "frames_over_1ms": waits.frames_over_1ms}),
     );
+    let backend: serde_json::Map<String, serde_json::Value> = result
+        .backend_lock_waits
+        .iter()
+        .map(|(thread, w)| {
+            let v = json!({"locks": w.count, "median_ms": ms(w.median), "p99_ms": ms(w.p99),
+                "max_ms": ms(w.max), "jobs_over_1ms": w.frames_over_1ms});
+            (thread.to_string(), v)
+        })
+        .collect();
+    extra.insert("backend_lock_waits".into(), backend.into());
     if let Some(e) = evaluation {
         extra.insert("evaluation".into(), e.json.clone());
     }

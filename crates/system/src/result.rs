@@ -193,8 +193,8 @@ pub struct RefusedLoop {
     pub reason: String,
 }
 
-/// How long the tracking thread waited for the locks it shares with the other threads (the
-/// graph, the keyframe store, the place-recognition database), over a run.
+/// How long a thread waited for the locks it shares with the other threads (the graph, the
+/// keyframe store, the place-recognition database), over a run.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LockWaits {
     /// Locks taken.
@@ -205,7 +205,7 @@ pub struct LockWaits {
     pub p99: Duration,
     /// The longest wait.
     pub max: Duration,
-    /// Frames whose locks together waited more than a millisecond.
+    /// Frames (a back-end thread's jobs) whose locks together waited more than a millisecond.
     pub frames_over_1ms: usize,
 }
 
@@ -248,6 +248,10 @@ pub struct RunResult {
     pub alternatives: Vec<(&'static str, Trajectory)>,
     /// How long the tracking thread waited for locks.
     pub lock_waits: LockWaits,
+    /// How long each back-end thread waited for the locks it shares with the tracking thread
+    /// (`frames_over_1ms`: its jobs), by the thread's name; threads only (inline, a stage's
+    /// waits are the tracking thread's).
+    pub backend_lock_waits: Vec<(&'static str, LockWaits)>,
     /// The map saved at the end (`Options::save_map`), or why it could not be: the run's
     /// outputs are written either way.
     pub saved_map: Option<Result<SavedMap, String>>,

@@ -2,7 +2,8 @@
 //! the loop closer — that panics or whose thread ends in the middle of a run becomes a warning,
 //! its work runs in the tracking thread from then on, and the run's outputs are complete, for
 //! every sensor: stereo (the KITTI snippet), RGB-D (7-Scenes) and monocular (7-Scenes' colour
-//! camera). The faults are a test switch of the workers (`Options::faults`).
+//! camera). The faults are a test switch of the workers (`Options::faults`). A clean run
+//! reports each thread's lock waits.
 
 use data::camera::SensorModel;
 use data::paths;
@@ -136,6 +137,21 @@ fn check(name: &str, n: usize, mono: bool) {
         return;
     };
     let clean = run(&sensor, &frames, Faults::default());
+    // Each back-end thread's waits for the locks it shares with the tracking thread are in the
+    // result (its jobs take the graph's locks).
+    let threads: Vec<&str> = clean.backend_lock_waits.iter().map(|(t, _)| *t).collect();
+    let expected: &[&str] = if mono {
+        &["loop closure"]
+    } else {
+        &["loop closure", "double window optimisation"]
+    };
+    assert_eq!(threads, expected);
+    for (thread, w) in &clean.backend_lock_waits {
+        assert!(
+            w.count > 0 && w.median <= w.p99 && w.p99 <= w.max,
+            "{thread}: {w:?}"
+        );
+    }
     for (faults, worker, what) in faults(!mono) {
         let faulty = run(&sensor, &frames, faults);
         println!(

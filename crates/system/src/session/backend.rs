@@ -14,10 +14,12 @@
 //! [`Mode::Deterministic`]: crate::Mode::Deterministic
 
 use slam::map::SharedGraph;
+use slam::map::shared::{record_lock_waits, take_lock_waits};
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
 use std::thread::JoinHandle;
+use std::time::Duration;
 
 /// A stage of work on the shared graph.
 pub(crate) trait Stage<const N: usize>: Send + 'static {
@@ -47,15 +49,60 @@ pub enum Fault {
 /// A job numbered in the order given.
 type Numbered<J> = (u64, J);
 
+/// A thread's answer to job `number`: its outputs and the waits of the locks it took.
+type Answer<O> = (u64, Vec<O>, Vec<Duration>);
+
 enum Runner<S: Stage<N>, const N: usize> {
     Inline(Box<S>),
     Thread {
         jobs: SyncSender<Numbered<S::Job>>,
-        outputs: Receiver<Numbered<Vec<S::Output>>>,
+        outputs: Receiver<Answer<S::Output>>,
         handle: JoinHandle<S>,
     },
     /// Only while changing from one to the other.
     Changing,
+}
+
+/// A thread's lock waits over a run (`slam::map::shared::record_lock_waits`): the tracking
+/// thread's per frame, a back-end thread's per job.
+#[derive(Default)]
+pub(crate) struct LockWaitLog {
+    /// Each lock's wait, nanoseconds.
+    waits: Vec<u32>,
+    /// Frames (jobs) whose locks waited more than a millisecond together.
+    frames_over_1ms: usize,
+}
+
+impl LockWaitLog {
+    /// The waits of one frame (job).
+    pub fn frame(&mut self, waits: Vec<Duration>) {
+        let total: Duration = waits.iter().sum();
+        if total > Duration::from_millis(1) {
+            self.frames_over_1ms += 1;
+        }
+        self.waits.extend(
+            waits
+                .into_iter()
+                .map(|w| u32::try_from(w.as_nanos()).unwrap_or(u32::MAX)),
+        );
+    }
+
+    /// Median, 99th percentile and longest wait.
+    pub fn summary(&self) -> crate::result::LockWaits {
+        let mut sorted = self.waits.clone();
+        sorted.sort_unstable();
+        let at = |q: f64| {
+            let i = ((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len().max(1)) - 1;
+            Duration::from_nanos(sorted.get(i).copied().unwrap_or(0).into())
+        };
+        crate::result::LockWaits {
+            count: sorted.len(),
+            median: at(0.5),
+            p99: at(0.99),
+            max: Duration::from_nanos(sorted.last().copied().unwrap_or(0).into()),
+            frames_over_1ms: self.frames_over_1ms,
+        }
+    }
 }
 
 /// A stage run in its own thread or inline (see the [module docs](self)).
@@ -81,6 +128,8 @@ pub(crate) struct Worker<S: Stage<N>, const N: usize> {
     pub max_waiting: usize,
     /// What became of the thread, if it died.
     pub deaths: Vec<String>,
+    /// The thread's lock waits, per job (inline, they are the calling thread's).
+    lock_waits: LockWaitLog,
 }
 
 impl<S: Stage<N>, const N: usize> Worker<S, N> {
@@ -118,6 +167,7 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
             queue_full: 0,
             max_waiting: 0,
             deaths: Vec::new(),
+            lock_waits: LockWaitLog::default(),
         }
     }
 
@@ -179,9 +229,10 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
                     self.pending.push_back(sent);
                 }
                 Err(TrySendError::Full(_)) if wait => match outputs.recv() {
-                    Ok((number, out)) => {
+                    Ok((number, out, waits)) => {
                         answered(&mut self.pending, number);
                         self.ready.extend(out);
+                        self.lock_waits.frame(waits);
                     }
                     Err(_) => break,
                 },
@@ -207,9 +258,10 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
         if let Runner::Thread { outputs, .. } = &self.runner {
             loop {
                 match outputs.try_recv() {
-                    Ok((number, out)) => {
+                    Ok((number, out, waits)) => {
                         answered(&mut self.pending, number);
                         self.ready.extend(out);
+                        self.lock_waits.frame(waits);
                     }
                     Err(TryRecvError::Empty) => break,
                     Err(TryRecvError::Disconnected) => {
@@ -228,8 +280,9 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
     }
 
     /// Ends the worker: a thread answers every job queued and ends (or died: its jobs then
-    /// run inline). Returns the last outputs and the stage.
-    pub fn finish(mut self) -> (Vec<S::Output>, S, Vec<String>) {
+    /// run inline). Returns the last outputs, the stage, what became of the thread and the
+    /// waits of the locks it took.
+    pub fn finish(mut self) -> (Vec<S::Output>, S, Vec<String>, LockWaitLog) {
         // The jobs still waiting go to the thread first.
         self.send_waiting(true);
         if let Runner::Thread { jobs, outputs, .. } = &mut self.runner {
@@ -237,9 +290,10 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
             // another worker's thread is gone once that worker has finished).
             let (closed, _) = sync_channel(1);
             drop(std::mem::replace(jobs, closed));
-            while let Ok((number, out)) = outputs.recv() {
+            while let Ok((number, out, waits)) = outputs.recv() {
                 answered(&mut self.pending, number);
                 self.ready.extend(out);
+                self.lock_waits.frame(waits);
             }
         }
         if self.threaded() {
@@ -250,7 +304,12 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
             Runner::Inline(stage) => *stage,
             _ => (self.make)(),
         };
-        (ready, stage, std::mem::take(&mut self.deaths))
+        (
+            ready,
+            stage,
+            std::mem::take(&mut self.deaths),
+            std::mem::take(&mut self.lock_waits),
+        )
     }
 
     /// The thread has ended (`expected`: at the end of the run, else on its own): joins it
@@ -323,10 +382,13 @@ fn spawn<S: Stage<N>, const N: usize>(
     fault: Option<Fault>,
 ) -> Runner<S, N> {
     let (jobs, inbox) = sync_channel::<Numbered<S::Job>>(queue.max(1));
-    let (outbox, outputs) = sync_channel::<Numbered<Vec<S::Output>>>(queue.max(1) + 64);
+    let (outbox, outputs) = sync_channel::<Answer<S::Output>>(queue.max(1) + 64);
     let handle = std::thread::Builder::new()
         .name(name.into())
         .spawn(move || {
+            // The waits for the graph and the databases this thread shares with the tracking
+            // thread, per job (`summary.json`: `backend_lock_waits`).
+            record_lock_waits(true);
             let mut answered = 0;
             while let Ok((number, job)) = inbox.recv() {
                 match fault {
@@ -339,7 +401,7 @@ fn spawn<S: Stage<N>, const N: usize>(
                 let mut out = Vec::new();
                 stage.run(&graph, &job, &mut out);
                 answered += 1;
-                if outbox.send((number, out)).is_err() {
+                if outbox.send((number, out, take_lock_waits())).is_err() {
                     break;
                 }
             }
@@ -395,7 +457,7 @@ mod tests {
             }
             out.extend(w.poll());
         }
-        let (last, stage, deaths) = w.finish();
+        let (last, stage, deaths, _) = w.finish();
         out.extend(last);
         (out, stage.0, deaths)
     }
@@ -471,7 +533,7 @@ mod tests {
                 w.queue_full,
                 w.max_waiting
             );
-            let (last, stage, deaths) = w.finish();
+            let (last, stage, deaths, _) = w.finish();
             out.extend(last);
             assert_eq!(out.len(), 200, "{fault:?}");
             match fault {

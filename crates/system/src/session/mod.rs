@@ -21,6 +21,8 @@ pub(crate) mod log;
 pub(crate) mod outputs;
 pub(crate) mod sensor;
 
+use backend::LockWaitLog;
+
 pub(crate) use sensor::{
     Backend, Context, Finished, Found, LoopOutput, Optimise, Optimised, Sensor, Step, StepState,
 };
@@ -63,6 +65,8 @@ pub(crate) struct Session<S: Sensor<N>, const N: usize> {
     loop_timings: StageTimings,
     /// How long the tracking thread waited for the locks it shares.
     lock_waits: LockWaitLog,
+    /// The back-end threads' lock waits, per thread (collected when they stop).
+    backend_lock_waits: Vec<(&'static str, crate::result::LockWaits)>,
     /// Keyframes that found the loop closer's queue full (they waited), and the most that
     /// waited at once.
     loop_queue_full: (usize, usize),
@@ -92,47 +96,6 @@ fn save_map(
         seconds,
         summary: map.summary(),
     })
-}
-
-/// The tracking thread's lock waits over a run (`slam::map::shared::record_lock_waits`).
-#[derive(Default)]
-pub(crate) struct LockWaitLog {
-    /// Each lock's wait, nanoseconds.
-    waits: Vec<u32>,
-    /// Frames whose locks waited more than a millisecond together.
-    frames_over_1ms: usize,
-}
-
-impl LockWaitLog {
-    /// The waits of one frame.
-    fn frame(&mut self, waits: Vec<Duration>) {
-        let total: Duration = waits.iter().sum();
-        if total > Duration::from_millis(1) {
-            self.frames_over_1ms += 1;
-        }
-        self.waits.extend(
-            waits
-                .into_iter()
-                .map(|w| u32::try_from(w.as_nanos()).unwrap_or(u32::MAX)),
-        );
-    }
-
-    /// Median, 99th percentile and longest wait.
-    pub fn summary(&self) -> crate::result::LockWaits {
-        let mut sorted = self.waits.clone();
-        sorted.sort_unstable();
-        let at = |q: f64| {
-            let i = ((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len().max(1)) - 1;
-            Duration::from_nanos(sorted.get(i).copied().unwrap_or(0).into())
-        };
-        crate::result::LockWaits {
-            count: sorted.len(),
-            median: at(0.5),
-            p99: at(0.99),
-            max: Duration::from_nanos(sorted.last().copied().unwrap_or(0).into()),
-            frames_over_1ms: self.frames_over_1ms,
-        }
-    }
 }
 
 impl<S: Sensor<N>, const N: usize> Session<S, N> {
@@ -166,6 +129,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             retired: Vec::new(),
             loop_timings: StageTimings::default(),
             lock_waits: LockWaitLog::default(),
+            backend_lock_waits: Vec::new(),
             loop_queue_full: (0, 0),
             save: None,
         }
@@ -429,6 +393,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
                 self.loop_queue_full.1,
             ),
             lock_waits: self.lock_waits.summary(),
+            backend_lock_waits: self.backend_lock_waits,
         };
         let mut result = outputs::assemble(ended, finished, S::run_graph);
         if let Some(((path, about), features)) = save {
@@ -442,14 +407,23 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
     fn stop_backend(&mut self) {
         if let Some(loops) = self.backend.loops.take() {
             self.loop_queue_full = (loops.queue_full, loops.max_waiting);
-            let (outputs, _, deaths) = loops.finish();
+            let threaded = loops.threaded();
+            let (outputs, _, deaths, waits) = loops.finish();
             self.warnings.extend(deaths);
+            if threaded {
+                self.backend_lock_waits
+                    .push(("loop closure", waits.summary()));
+            }
             self.take_loop_outputs(outputs);
         }
         if let Some(optimiser) = self.backend.optimiser.take() {
             let threaded = optimiser.threaded();
-            let (outputs, _, deaths) = optimiser.finish();
+            let (outputs, _, deaths, waits) = optimiser.finish();
             self.warnings.extend(deaths);
+            if threaded {
+                self.backend_lock_waits
+                    .push(("double window optimisation", waits.summary()));
+            }
             self.take_optimised(outputs, threaded);
         }
     }

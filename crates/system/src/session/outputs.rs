@@ -33,6 +33,7 @@ pub(super) struct Ended {
     /// Keyframes that found the loop closer's queue full, its length, the most that waited.
     pub loop_queue_full: (usize, usize, usize),
     pub lock_waits: LockWaits,
+    pub backend_lock_waits: Vec<(&'static str, LockWaits)>,
 }
 
 /// The run's result from what the session ended with and the sensor's final graphs
@@ -53,6 +54,7 @@ pub(super) fn assemble<const N: usize>(
         mut warnings,
         loop_queue_full,
         lock_waits,
+        backend_lock_waits,
     } = ended;
     let Finished {
         graph,
@@ -98,6 +100,7 @@ pub(super) fn assemble<const N: usize>(
         warnings,
         alternatives,
         lock_waits,
+        backend_lock_waits,
         saved_map: None,
     }
 }
