@@ -312,6 +312,9 @@ pub struct FrameOutcome {
     pub waiting: Option<String>,
     /// The keyframe's double window optimisation, with `double_window`.
     pub optimisation: Option<DwoStats>,
+    /// How long the keyframe's window took (copied out, solved, written back): the part of a
+    /// keyframe's time that another thread could take over.
+    pub window_time: Option<std::time::Duration>,
 }
 
 /// Why exploration stopped.
@@ -639,6 +642,7 @@ impl MonoExplorer {
                     filters: 0,
                     waiting: Some("the first frame".into()),
                     optimisation: None,
+                    window_time: None,
                 })
             }
             State::Bootstrapping {
@@ -684,6 +688,7 @@ impl MonoExplorer {
                             filters: 0,
                             waiting: Some(reason),
                             optimisation: None,
+                            window_time: None,
                         })
                     }
                 }
@@ -869,6 +874,7 @@ impl MonoExplorer {
             filters: self.filters.len(),
             waiting: None,
             optimisation: None,
+            window_time: None,
         })
     }
 
@@ -892,7 +898,9 @@ impl MonoExplorer {
             velocity,
         )?;
         if let Some(k) = tracked.keyframe {
+            let started = std::time::Instant::now();
             tracked.optimisation = self.optimise_keyframe(graph, k)?;
+            tracked.window_time = Some(started.elapsed());
             let pose = rigid_pose(&graph.read(), k);
             tracked.camera_from_world = Some(pose);
             if let Some(last) = self.frame_poses.last_mut() {
@@ -1001,6 +1009,7 @@ impl MonoExplorer {
             filters: self.filters.len(),
             waiting: None,
             optimisation: None,
+            window_time: None,
         })
     }
 
