@@ -9,7 +9,8 @@
 # moves by ±50 % with any small change).
 #   bench/live/mono_configs.sh BINARY TAG [CONFIG.yaml|""] [CORE] [sequence keys...]
 #   keys: k04 k06 7s town town2 room court bldg (default: all)
-#   env: DWSLAM_DATA (../shared/data), RENDERED (folder of the renders: town-mono,
+#   env: THREADED=1 (the live system's threads — loop closure, the keyframe window BA — instead
+#        of --deterministic; give CORE as 0,1), DWSLAM_DATA (../shared/data), RENDERED (folder of the renders: town-mono,
 #        town-mono-seed2, room-mono, courtyard-mono, building-mono; `dwslam render SCENE
 #        --sensor mono --layout kitti [--seed 2] --out ...`), OUT (/tmp/dwslam-mono-configs)
 set -euo pipefail
@@ -25,7 +26,7 @@ keys=("$@"); [ ${#keys[@]} -gt 0 ] || keys=(k04 k06 7s town town2 room court bld
 mkdir -p "$OUT"
 for s in "${keys[@]}"; do
   out=$OUT/$TAG-$s
-  if ! taskset -c "$CORE" "$BIN" run "${P[$s]}" --sensor mono --deterministic --quiet --out "$out" \
+  if ! taskset -c "$CORE" "$BIN" run "${P[$s]}" --sensor mono $([ -n "${THREADED:-}" ] || echo --deterministic) --quiet --out "$out" \
       ${CFG:+--config "$CFG"} > "$out.log" 2>&1; then
     echo "$TAG $s: failed (see $out.log)"; continue
   fi

@@ -21,7 +21,7 @@ use crate::place_recognition::{
     KeyframeFeatures, PlaceRecognition, PlaceRecognitionConfig, features,
 };
 use crate::result::{Relocalisation, RunGraph, SystemError};
-use crate::session::{Context, Finished, Found, Sensor, Step, StepState};
+use crate::session::{Context, Finished, Found, Optimise, Sensor, Step, StepState};
 use crate::tracker::{Tracked, Tracker};
 use data::output::TrackingState;
 use geom::StereoCamera;
@@ -35,7 +35,7 @@ use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 
 /// The context of the depth sensor's calls.
-type Ctx<'a, 'b> = Context<'a, LoopCloser, StereoCamera, 3>;
+type Ctx<'a, 'b> = Context<'a, LoopCloser, Optimise<StereoCamera>, 3>;
 
 /// The stereo and RGB-D front-end (see the [module docs](self)).
 pub(crate) struct DepthSensor {
@@ -321,7 +321,7 @@ impl DepthSensor {
             keyframe,
             frame: frame.clone(),
         });
-        ctx.backend.keyframe(job);
+        ctx.backend.keyframe(job, Some(()));
         Ok((keyframe, map))
     }
 
@@ -522,7 +522,8 @@ fn reuse_reference(
 
 impl Sensor<3> for DepthSensor {
     type Frame = Arc<FrameData>;
-    type Camera = StereoCamera;
+    type OptimiserData = std::convert::Infallible;
+    type Optimiser = Optimise<StereoCamera>;
     type LoopData = ();
     type Loops = LoopCloser;
 
@@ -645,6 +646,10 @@ impl Sensor<3> for DepthSensor {
             keyframe,
             KeyframeReason::NewMap,
         )))
+    }
+
+    fn optimised(&mut self, _: &mut Ctx, data: std::convert::Infallible) {
+        match data {}
     }
 
     fn loop_data(&mut self, _: &mut Ctx, _: ()) {}

@@ -6,6 +6,7 @@ use crate::frame::SensorFrontEnd;
 use crate::keyframes::KeyframeStore;
 use crate::map_file::{MapAbout, MapCamera, MapFile, VocabularyId};
 use crate::mono::MonoSensor;
+use crate::mono::window::MonoWindow;
 use crate::result::RunGraph;
 use crate::result::{FrameReport, LiveRun, MapSnapshot, Mode, Progress, RunResult, SystemError};
 use crate::session::backend::Worker;
@@ -149,8 +150,20 @@ impl System {
                     let template = stage.again();
                     loop_worker(&graph, stage, move || template.again(), &config, &options)
                 });
+                // One keyframe window at a time: the tracking thread waits for it before the
+                // next frame reads the map (`mono::window`).
+                let optimiser = Worker::new(
+                    "keyframe window BA",
+                    graph.clone(),
+                    MonoWindow,
+                    Box::new(|| MonoWindow),
+                    threaded,
+                    1,
+                    false,
+                    options.faults.optimiser,
+                );
                 let backend = Backend {
-                    optimiser: None,
+                    optimiser: Some(optimiser),
                     loops,
                 };
                 let mut session =

@@ -87,8 +87,9 @@ fn assert_complete(clean: &RunResult, faulty: &RunResult, worker: &str, what: &s
     );
 }
 
-/// Each fault of the workers `sensor` has, after two jobs.
-fn faults(depth: bool) -> Vec<(Faults, &'static str, &'static str)> {
+/// Each fault of the workers a sensor has (its optimiser's thread named `optimiser`), after
+/// two jobs.
+fn faults(optimiser: &'static str) -> Vec<(Faults, &'static str, &'static str)> {
     let panic = Some(Fault::Panic { after: 2 });
     let disconnect = Some(Fault::Disconnect { after: 2 });
     let mut cases = vec![
@@ -109,26 +110,24 @@ fn faults(depth: bool) -> Vec<(Faults, &'static str, &'static str)> {
             "ended before the run did",
         ),
     ];
-    if depth {
-        cases.extend([
-            (
-                Faults {
-                    optimiser: panic,
-                    ..Faults::default()
-                },
-                "double window optimisation thread",
-                "panicked",
-            ),
-            (
-                Faults {
-                    optimiser: disconnect,
-                    ..Faults::default()
-                },
-                "double window optimisation thread",
-                "ended before the run did",
-            ),
-        ]);
-    }
+    cases.extend([
+        (
+            Faults {
+                optimiser: panic,
+                ..Faults::default()
+            },
+            optimiser,
+            "panicked",
+        ),
+        (
+            Faults {
+                optimiser: disconnect,
+                ..Faults::default()
+            },
+            optimiser,
+            "ended before the run did",
+        ),
+    ]);
     cases
 }
 
@@ -141,7 +140,7 @@ fn check(name: &str, n: usize, mono: bool) {
     // result (its jobs take the graph's locks).
     let threads: Vec<&str> = clean.backend_lock_waits.iter().map(|(t, _)| *t).collect();
     let expected: &[&str] = if mono {
-        &["loop closure"]
+        &["loop closure", "keyframe window BA"]
     } else {
         &["loop closure", "double window optimisation"]
     };
@@ -152,7 +151,12 @@ fn check(name: &str, n: usize, mono: bool) {
             "{thread}: {w:?}"
         );
     }
-    for (faults, worker, what) in faults(!mono) {
+    let optimiser = if mono {
+        "keyframe window BA thread"
+    } else {
+        "double window optimisation thread"
+    };
+    for (faults, worker, what) in faults(optimiser) {
         let faulty = run(&sensor, &frames, faults);
         println!(
             "{name}{}: {worker} {what}: {} of {} frames posed",

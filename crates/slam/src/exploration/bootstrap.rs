@@ -158,6 +158,7 @@ impl MonoExplorer {
             waiting: None,
             optimisation: None,
             window_time: None,
+            window: None,
         })
     }
 }

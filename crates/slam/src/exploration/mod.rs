@@ -47,9 +47,17 @@
 //! §3.3.3) and writes them back anchored.
 
 mod bootstrap;
+mod error;
 pub mod feature_init;
+mod poses;
 mod resume;
 mod window;
+mod window_job;
+
+pub use error::ExplorationError;
+pub use poses::rigid_pose;
+use window_job::solver;
+pub use window_job::{SolvedWindow, WindowJob};
 
 use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
 use crate::dwo::DwoStats;
@@ -61,7 +69,7 @@ use geom::bootstrap::{BootstrapConfig, bootstrap_pose};
 use geom::ransac::RansacConfig;
 use geom::{CameraModel, PinholeCamera};
 use lie::{LieGroup, Se3, Sim3};
-use lsq::{RobustKernel, SolverOptions};
+use lsq::RobustKernel;
 use nalgebra::{Vector2, Vector3};
 use std::collections::{HashMap, HashSet};
 use vision::quadtree::{QuadPoint, QuadTree};
@@ -316,38 +324,9 @@ pub struct FrameOutcome {
     /// How long the keyframe's window took (copied out, solved, written back): the part of a
     /// keyframe's time that another thread could take over.
     pub window_time: Option<std::time::Duration>,
-}
-
-/// Why exploration stopped.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ExplorationError {
-    /// No frame pair had enough parallax to bootstrap.
-    #[error("bootstrap failed after {frames} frames: {reason}")]
-    BootstrapFailed {
-        /// Frames tried.
-        frames: usize,
-        /// The last reason.
-        reason: String,
-    },
-    /// Too few map points were measured to track the pose.
-    #[error("tracking lost at frame {frame}: {tracked} map points measured")]
-    TrackingLost {
-        /// The frame.
-        frame: usize,
-        /// Map points measured.
-        tracked: usize,
-    },
-    /// Frames must be given in increasing order.
-    #[error("frame {frame} given after frame {last}")]
-    FrameOrder {
-        /// The frame.
-        frame: usize,
-        /// The previous one.
-        last: usize,
-    },
-    /// An optimisation failed.
-    #[error("optimisation failed: {0}")]
-    Optimisation(String),
+    /// A keyframe's BA left to the caller (`defer_windows`): solve it ([`WindowJob::solve`],
+    /// in any thread) and give it back ([`MonoExplorer::apply_window`]) before the next frame.
+    pub window: Option<WindowJob>,
 }
 
 enum State {
@@ -363,18 +342,6 @@ enum State {
         /// Per-frame motion `T_t·T_{t−1}⁻¹`.
         velocity: Se3,
     },
-}
-
-/// The rigid pose of keyframe `k` of `graph` (`(R, t/s)` of its similarity, see
-/// [`crate::pose_graph::rigid_from_similarity`]): the pose of a monocular keyframe in its map's
-/// metric.
-pub fn rigid_pose<const N: usize>(graph: &SlamGraph<N>, k: KeyframeId) -> Se3 {
-    crate::pose_graph::rigid_from_similarity(
-        graph
-            .keyframe(k)
-            .expect("an exploration's keyframes are never removed")
-            .camera_from_world(),
-    )
 }
 
 /// The scale of keyframe `k`'s similarity.
@@ -411,14 +378,8 @@ pub struct MonoExplorer {
     /// Localising: the keyframes made where the map does not cover the view, oldest first
     /// ([`MonoExplorer::remove_temporary`]).
     temporary: Vec<KeyframeId>,
-}
-
-fn solver(iterations: usize) -> SolverOptions {
-    SolverOptions {
-        max_iterations: iterations,
-        threads: Some(1),
-        ..SolverOptions::default()
-    }
+    /// A keyframe's BA is left to the caller ([`MonoExplorer::defer_windows`]).
+    defer_windows: bool,
 }
 
 fn median(values: &mut [f64]) -> Option<f64> {
@@ -453,7 +414,16 @@ impl MonoExplorer {
             state: State::Empty,
             localise: false,
             temporary: Vec::new(),
+            defer_windows: false,
         }
+    }
+
+    /// Leaves each new keyframe's BA to the caller (`FrameOutcome::window`): a live system
+    /// solves it in a back-end thread while the next frame's tracks are followed, and gives it
+    /// back before the next frame is explored ([`MonoExplorer::apply_window`]). The double
+    /// window is not deferred.
+    pub fn defer_windows(&mut self, defer: bool) {
+        self.defer_windows = defer;
     }
 
     /// The keyframes' and points' records so far (the map itself is the caller's graph).
@@ -644,6 +614,7 @@ impl MonoExplorer {
                     waiting: Some("the first frame".into()),
                     optimisation: None,
                     window_time: None,
+                    window: None,
                 })
             }
             State::Bootstrapping {
@@ -690,6 +661,7 @@ impl MonoExplorer {
                             waiting: Some(reason),
                             optimisation: None,
                             window_time: None,
+                            window: None,
                         })
                     }
                 }
@@ -723,7 +695,11 @@ impl MonoExplorer {
     }
 
     /// A frame tracked: steps 1–4 and a keyframe's registration under one write lock, its
-    /// window's optimisation ([`MonoExplorer::optimise_keyframe`]) with the lock taken per step.
+    /// window's optimisation with the lock taken per step: the double window
+    /// ([`MonoExplorer::double_window`]), or the keyframe BA — read under a read lock, solved
+    /// with none, written back under a write lock ([`WindowJob::solve`],
+    /// [`MonoExplorer::apply_window`]) — unless the caller solves it (`defer_windows`:
+    /// the outcome's `window`).
     fn track(
         &mut self,
         graph: &mut impl GraphAccess<2>,
@@ -741,18 +717,32 @@ impl MonoExplorer {
             last_pose,
             velocity,
         )?;
-        if let Some(k) = tracked.keyframe {
-            let started = std::time::Instant::now();
-            tracked.optimisation = self.optimise_keyframe(graph, k)?;
-            tracked.window_time = Some(started.elapsed());
+        let Some(k) = tracked.keyframe else {
+            return Ok(tracked);
+        };
+        let started = std::time::Instant::now();
+        let pose = if let Some(job) = tracked.window.take() {
+            if self.defer_windows {
+                tracked.window = Some(job);
+                return Ok(tracked);
+            }
+            let solved = job.solve(&mut *graph)?;
+            // Stale only if another thread moved the window's keyframes meanwhile.
+            self.apply_window(&mut graph.write(), solved)?
+        } else {
+            tracked.optimisation = self.double_window(graph, k)?;
             let pose = rigid_pose(&graph.read(), k);
-            tracked.camera_from_world = Some(pose);
             if let Some(last) = self.frame_poses.last_mut() {
                 last.1 = pose;
             }
             if let State::Tracking { last_pose, .. } = &mut self.state {
                 *last_pose = pose;
             }
+            Some(pose)
+        };
+        tracked.window_time = Some(started.elapsed());
+        if pose.is_some() {
+            tracked.camera_from_world = pose;
         }
         Ok(tracked)
     }
@@ -829,6 +819,7 @@ impl MonoExplorer {
         // 5. In a keyframe: new features (its window is optimised next, `track`), and for
         // the double window its place in the covisibility graph, as the reference.
         let mut started = 0;
+        let mut window = None;
         if let Some(k) = keyframe {
             started = self.start_features(graph, k, frame, measurements);
             if self.double_window.is_some() && !self.localise {
@@ -836,6 +827,8 @@ impl MonoExplorer {
                 crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
                     .and_then(|_| graph.set_reference(k))
                     .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            } else {
+                window = Some(self.window_job(graph, k));
             }
         }
         self.frame_poses.push((frame, pose));
@@ -854,22 +847,23 @@ impl MonoExplorer {
             waiting: None,
             optimisation: None,
             window_time: None,
+            window,
         })
     }
 
-    /// Optimises new keyframe `k`'s window: the double window (`double_window`, not while
-    /// localising) or the keyframe BA ([`MonoExplorer::window_ba`]; a temporary keyframe's
-    /// window moves only temporary keyframes and points). Either copies its problem out under
-    /// a read lock, solves with no lock held and writes back under a write lock.
-    fn optimise_keyframe(
+    /// Optimises new keyframe `k`'s window by the double window (`double_window`, not while
+    /// localising), which copies its problem out under a read lock, solves with no lock held
+    /// and writes back under a write lock; then removes what the optimum does not explain and
+    /// moves the filters' anchors.
+    fn double_window(
         &mut self,
         graph: &mut impl GraphAccess<2>,
         k: KeyframeId,
     ) -> Result<Option<DwoStats>, ExplorationError> {
-        let Some(dwo) = self.double_window.as_mut().filter(|_| !self.localise) else {
-            self.window_ba(graph, k)?;
-            return Ok(None);
-        };
+        let dwo = self
+            .double_window
+            .as_mut()
+            .expect("a keyframe without a window job has the double window");
         let stats = dwo
             .optimise(&mut *graph, &self.camera)
             .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;

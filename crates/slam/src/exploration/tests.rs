@@ -557,8 +557,8 @@ fn a_keyframe_window_is_solved_with_no_lock_held() {
                     keyframes += 1;
                     // The tracking's write; the window read, solved, written back (the double
                     // window then removes outliers and moves the filters' anchors under one
-                    // more write); the keyframe's new pose read.
-                    let expected = if dwo { "wrwwr" } else { "wrwr" };
+                    // more write, and reads the keyframe's new pose).
+                    let expected = if dwo { "wrwwr" } else { "wrw" };
                     assert_eq!(logged.log, expected, "frame {f}");
                 }
                 None if outcome.camera_from_world.is_some() => {
@@ -601,4 +601,83 @@ fn a_keyframe_window_is_solved_with_no_lock_held() {
         };
         assert_eq!(poses(&shared), poses(&owned), "double window: {dwo}");
     }
+}
+
+/// A keyframe's BA left to the caller (`defer_windows`) and solved in another thread — while
+/// that thread holds no lock and another one reads the graph — gives the same map as the one
+/// the explorer solves itself; a window whose keyframes moved meanwhile (a loop corrected) is
+/// stale and writes nothing.
+#[test]
+fn a_deferred_window_solved_in_another_thread_gives_the_same_map() {
+    let (_, frames) = sideways(3, 60, 0.5);
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let mut owned = SlamGraph::new();
+    let mut explorer = MonoExplorer::new(camera, map_reuse(0.5));
+    let mut inline_poses = Vec::new();
+    for (f, m) in frames.iter().enumerate() {
+        let o = explorer.process(&mut owned, f, m).unwrap();
+        assert!(o.window.is_none());
+        inline_poses.push(o.camera_from_world);
+    }
+    let shared = SharedGraph::new(SlamGraph::new());
+    let mut deferred = MonoExplorer::new(camera, map_reuse(0.5));
+    deferred.defer_windows(true);
+    let mut solved_elsewhere = 0;
+    for (f, m) in frames.iter().enumerate() {
+        let mut o = deferred.process(&shared, f, m).unwrap();
+        if let Some(job) = o.window.take() {
+            assert_eq!(Some(job.keyframe()), o.keyframe);
+            let solved = std::thread::scope(|s| s.spawn(|| job.solve(&shared)).join())
+                .unwrap()
+                .unwrap();
+            let pose = deferred
+                .apply_window(&mut shared.write(), solved)
+                .unwrap()
+                .expect("nothing moved the window meanwhile");
+            o.camera_from_world = Some(pose);
+            solved_elsewhere += 1;
+        }
+        assert_eq!(o.camera_from_world, inline_poses[f], "frame {f}");
+    }
+    assert!(solved_elsewhere >= 5, "{solved_elsewhere} windows");
+    let shared = shared.into_inner();
+    let map = |g: &SlamGraph<2>| -> (Vec<_>, Vec<_>) {
+        (
+            g.keyframes()
+                .map(|(k, kf)| (k, *kf.camera_from_world()))
+                .collect(),
+            g.points()
+                .map(|(p, pt)| (p, pt.anchor(), *pt.inverse_depth()))
+                .collect(),
+        )
+    };
+    assert_eq!(map(&shared), map(&owned));
+
+    // A window whose keyframe moved between reading and writing back is stale.
+    let mut graph = SlamGraph::new();
+    let mut explorer = MonoExplorer::new(camera, map_reuse(0.5));
+    explorer.defer_windows(true);
+    let mut stale = 0;
+    for (f, m) in frames.iter().enumerate() {
+        let o = explorer.process(&mut graph, f, m).unwrap();
+        let Some(job) = o.window else {
+            continue;
+        };
+        let solved = job.solve(&mut graph).unwrap();
+        if explorer.map().keyframes.len() > 4 {
+            let k = job.keyframe();
+            let moved = Sim3::from_se3(&Se3::exp(&nalgebra::Vector6::new(
+                0.01, 0.0, 0.0, 0.0, 0.0, 0.0,
+            )))
+            .compose(&graph.pose(k).unwrap());
+            graph.set_pose(k, moved).unwrap();
+            let before = map(&graph);
+            assert_eq!(explorer.apply_window(&mut graph, solved).unwrap(), None);
+            assert_eq!(map(&graph), before, "a stale window writes nothing");
+            stale += 1;
+        } else {
+            explorer.apply_window(&mut graph, solved).unwrap();
+        }
+    }
+    assert!(stale >= 3, "{stale} stale windows");
 }

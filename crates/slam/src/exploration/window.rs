@@ -1,16 +1,14 @@
 //! The keyframe BA's window (thesis §3.3.3, §5.4): which keyframes a new keyframe's BA
-//! optimises, the BA itself (a loaded map held while localising) and the removal of the
-//! measurements its optimum — or the double window's — does not explain.
+//! optimises (its job: `window_job.rs`; a loaded map held while localising), its answer written
+//! back, and the removal of the measurements its optimum — or the double window's — does not
+//! explain.
 
-use super::{ExplorationError, LocalWindow, MonoExplorer, rigid_pose, solver};
-use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
+use super::{ExplorationError, LocalWindow, MonoExplorer, SolvedWindow, WindowJob, rigid_pose};
 use crate::factors::point_to_inverse_depth;
-use crate::map::{GraphAccess, KeyframeId, PointId, SlamGraph};
+use crate::map::{KeyframeId, PointId, SlamGraph};
 use geom::CameraModel;
 use lie::{LieGroup, Se3, Sim3};
-use lsq::RobustKernel;
-use nalgebra::Vector3;
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 
 impl MonoExplorer {
     /// The keyframes the BA of new keyframe `k` optimises, oldest first
@@ -105,102 +103,10 @@ impl MonoExplorer {
         self.drop_measurements(graph, k, outliers)
     }
 
-    /// The keyframe BA of new keyframe `k` (§3.3.3) on Euclidean points: the window's keyframes
-    /// ([`Self::local_keyframes`]) and the points they measure are optimised; up to
-    /// `fixed_observers` other keyframes measuring those points join as fixed poses, and
-    /// with fewer than two of them the window's two oldest keyframes are fixed (they anchor
-    /// the window to the trajectory and fix the scale gauge). Points measured once in all
-    /// are held fixed. The points are written back anchored in their (possibly moved) anchor
-    /// keyframes.
-    ///
-    /// The problem is copied out under a read lock of `graph`, solved with no lock held and
-    /// written back under a write lock ([`GraphAccess`]).
-    pub(super) fn window_ba(
-        &mut self,
-        graph: &mut impl GraphAccess<2>,
-        k: KeyframeId,
-    ) -> Result<(), ExplorationError> {
-        let WindowProblem {
-            local,
-            window,
-            count,
-            held,
-            observations,
-            mut ba,
-        } = self.window_problem(&graph.read(), k)?;
-        ba.problem
-            .optimise(&solver(self.config.ba_iterations))
-            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        let mut graph = graph.write();
-        let graph = &mut *graph;
-        let (poses, points) = (ba.camera_from_world(), ba.points_world());
-        for (&k, t) in local.iter().zip(&poses) {
-            graph
-                .set_pose(k, Sim3::from_se3(t))
-                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            self.filters
-                .set_anchor_pose(self.map.keyframes[k.index()].frame, *t);
-        }
-        // Measurements the optimum does not explain leave the map (after the points are
-        // written back, below).
-        let mut outliers: Vec<(KeyframeId, PointId)> = Vec::new();
-        if self.config.remove_outliers {
-            let gate = lsq::chi2_quantile(2, 0.95) * self.config.sigma * self.config.sigma;
-            let ids: Vec<PointId> = count.keys().copied().collect();
-            let all_poses = ba.camera_from_world();
-            for o in &observations {
-                let p = ids[o.point];
-                if count[&p] < 2 || (self.localise && !self.temporary.contains(&window[o.pose])) {
-                    continue;
-                }
-                let x = all_poses[o.pose].act(&points[o.point]);
-                let explained = CameraModel::project(&self.camera, &x)
-                    .is_ok_and(|z| (z - o.measurement).norm_squared() <= gate);
-                if !explained {
-                    outliers.push((window[o.pose], p));
-                }
-            }
-        }
-        for (&p, y) in count.keys().zip(&points) {
-            if held.contains(&p) {
-                continue;
-            }
-            let anchor = graph.point(p).expect("in the map").anchor();
-            let x = graph.pose(anchor).expect("in the map").act(y);
-            // A point the window pushed behind its anchor keeps its previous position.
-            if let Some(psi) = point_to_inverse_depth(&x) {
-                graph
-                    .set_inverse_depth(p, psi)
-                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            }
-        }
-        self.drop_measurements(graph, k, outliers)
-    }
-}
-
-/// The keyframe BA's problem as [`MonoExplorer::window_problem`] copies it out of the graph.
-struct WindowProblem {
-    /// The keyframes optimised, oldest first.
-    local: Vec<KeyframeId>,
-    /// `local`, then the fixed observers: the BA's poses.
-    window: Vec<KeyframeId>,
-    /// The window's points, with how many of its keyframes measure each.
-    count: BTreeMap<PointId, usize>,
-    /// Points held fixed and not written back (a loaded map's, while localising).
-    held: HashSet<PointId>,
-    /// The BA's observations, indexing `window` and `count`.
-    observations: Vec<Observation<2>>,
-    /// The problem, its points' fixings set.
-    ba: BundleAdjustment,
-}
-
-impl MonoExplorer {
-    /// Builds the keyframe BA of new keyframe `k` from `graph` (see [`MonoExplorer::window_ba`]).
-    fn window_problem(
-        &self,
-        graph: &SlamGraph<2>,
-        k: KeyframeId,
-    ) -> Result<WindowProblem, ExplorationError> {
+    /// The keyframe BA of new keyframe `k` (§3.3.3) as a job another thread can solve
+    /// ([`WindowJob::solve`]): the window's keyframes ([`Self::local_keyframes`]; localising,
+    /// only the temporary ones) and what the BA needs of the explorer's configuration.
+    pub(super) fn window_job(&self, graph: &SlamGraph<2>, k: KeyframeId) -> WindowJob {
         let mut local = self.local_keyframes(graph, k);
         // Localising, only the temporary keyframes and their points move: the loaded map's
         // keyframes that measure the window's points are held as its fixed observers, and its
@@ -208,111 +114,92 @@ impl MonoExplorer {
         if self.localise {
             local.retain(|w| self.temporary.contains(w));
         }
-        let mut count: BTreeMap<PointId, usize> = BTreeMap::new();
-        for &w in &local {
-            for &p in graph.keyframe(w).expect("in the map").observations().keys() {
-                *count.entry(p).or_default() += 1;
+        WindowJob {
+            keyframe: k,
+            local,
+            temporary: self.localise.then(|| self.temporary.clone()),
+            camera: self.camera,
+            sigma: self.config.sigma,
+            huber: self.config.huber,
+            fixed_observers: self.config.fixed_observers,
+            iterations: self.config.ba_iterations,
+            remove_outliers: self.config.remove_outliers,
+        }
+    }
+
+    /// Writes a solved window back into `graph` (the keyframes' poses, the filters' anchors,
+    /// the points anchored in their possibly moved anchors; the measurements the optimum does
+    /// not explain leave the map) and moves the frames' poses after the keyframe with it:
+    /// the keyframe's new pose, or `None` if the window is stale — a keyframe of it moved
+    /// since it was read (a loop corrected meanwhile): then nothing is written. Points changed
+    /// or removed since keep their newer state.
+    pub fn apply_window(
+        &mut self,
+        graph: &mut SlamGraph<2>,
+        solved: SolvedWindow,
+    ) -> Result<Option<Se3>, ExplorationError> {
+        let stale = solved.window.iter().any(|&w| {
+            graph
+                .keyframe(w)
+                .is_none_or(|kf| kf.pose_version() > solved.version)
+        });
+        if stale {
+            return Ok(None);
+        }
+        let k = solved.keyframe;
+        let before = rigid_pose(graph, k);
+        for (&w, t) in solved.local.iter().zip(&solved.poses) {
+            graph
+                .set_pose(w, Sim3::from_se3(t))
+                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            self.filters
+                .set_anchor_pose(self.map.keyframes[w.index()].frame, *t);
+        }
+        for (p, y) in &solved.points {
+            let Some(point) = graph.point(*p).filter(|pt| pt.version() <= solved.version) else {
+                continue;
+            };
+            let x = graph.pose(point.anchor()).expect("in the map").act(y);
+            // A point the window pushed behind its anchor keeps its previous position.
+            if let Some(psi) = point_to_inverse_depth(&x) {
+                graph
+                    .set_inverse_depth(*p, psi)
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
             }
         }
-        let held: HashSet<PointId> = if self.localise {
-            count
-                .keys()
-                .copied()
-                .filter(|&p| {
-                    graph
-                        .point(p)
-                        .is_some_and(|pt| !self.temporary.contains(&pt.anchor()))
-                })
-                .collect()
-        } else {
-            HashSet::new()
-        };
-        // Other observers of the window's points, those measuring most of them first.
-        let mut fixed: Vec<KeyframeId> = Vec::new();
-        if self.config.fixed_observers > 0 {
-            let in_local: HashSet<KeyframeId> = local.iter().copied().collect();
-            let mut measuring: BTreeMap<KeyframeId, usize> = BTreeMap::new();
-            for p in count.keys() {
-                for &o in graph.point(*p).expect("in the map").observers() {
-                    if !in_local.contains(&o) {
-                        *measuring.entry(o).or_default() += 1;
-                    }
-                }
-            }
-            let mut by_count: Vec<(usize, KeyframeId)> =
-                measuring.into_iter().map(|(o, c)| (c, o)).collect();
-            by_count.sort_by(|a, b| b.cmp(a));
-            fixed.extend(
-                by_count
-                    .into_iter()
-                    .take(self.config.fixed_observers)
-                    .map(|(_, o)| o),
-            );
-            fixed.sort();
-            for &f in &fixed {
-                for &p in graph.keyframe(f).expect("in the map").observations().keys() {
-                    if let Some(c) = count.get_mut(&p) {
-                        *c += 1;
-                    }
-                }
-            }
-        }
-        // Window first (optimised), then the fixed observers; the gauge.
-        let window: Vec<KeyframeId> = local.iter().chain(&fixed).copied().collect();
-        let gauge: Vec<usize> = if fixed.len() >= 2 {
-            (local.len()..window.len()).collect()
-        } else {
-            (0..2.min(local.len()))
-                .chain(local.len()..window.len())
-                .collect()
-        };
-        let poses: Vec<Se3> = window.iter().map(|&k| rigid_pose(graph, k)).collect();
-        let index: BTreeMap<PointId, usize> =
-            count.keys().enumerate().map(|(i, &p)| (p, i)).collect();
-        let points: Vec<Vector3<f64>> = count
-            .keys()
-            .map(|&p| graph.point_world(p))
-            .collect::<Result<_, _>>()
-            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        let observations: Vec<Observation<2>> = window
-            .iter()
-            .enumerate()
-            .flat_map(|(wi, &k)| {
-                let obs = graph.keyframe(k).expect("in the map").observations();
-                let index = &index;
-                // A fixed observer's other points are not in the problem.
-                obs.iter().filter_map(move |(p, z)| {
-                    Some(Observation {
-                        pose: wi,
-                        point: *index.get(p)?,
-                        measurement: *z,
-                    })
-                })
+        let outliers: Vec<(KeyframeId, PointId)> = solved
+            .outliers
+            .into_iter()
+            .filter(|&(w, p)| {
+                graph
+                    .keyframe(w)
+                    .is_some_and(|kf| kf.observations().contains_key(&p))
             })
             .collect();
-        let mut ba = BundleAdjustment::new(
-            &self.camera,
-            &poses,
-            &points,
-            &observations,
-            self.config.sigma,
-            Some(RobustKernel::Huber(self.config.huber)),
-            BaMode::Full,
-            &Gauge::FixPoses(gauge),
-        )
-        .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        for (v, (&p, &c)) in ba.points.iter().zip(&count) {
-            if c < 2 || held.contains(&p) {
-                ba.problem.set_fixed(v.key(), true);
+        self.drop_measurements(graph, k, outliers)?;
+        // The frames tracked since the keyframe move with it (`T_j·T_k⁻¹·T_k'`).
+        let after = rigid_pose(graph, k);
+        let frame = self.map.keyframes[k.index()].frame;
+        let moved = |t: &Se3| t.compose(&before.inverse()).compose(&after);
+        for (f, t) in self.frame_poses.iter_mut().rev() {
+            match (*f).cmp(&frame) {
+                std::cmp::Ordering::Greater => *t = moved(t),
+                std::cmp::Ordering::Equal => *t = after,
+                std::cmp::Ordering::Less => break,
             }
         }
-        Ok(WindowProblem {
-            local,
-            window,
-            count,
-            held,
-            observations,
-            ba,
-        })
+        if let super::State::Tracking {
+            last_frame,
+            last_pose,
+            ..
+        } = &mut self.state
+        {
+            *last_pose = if *last_frame == frame {
+                after
+            } else {
+                moved(last_pose)
+            };
+        }
+        Ok(Some(after))
     }
 }

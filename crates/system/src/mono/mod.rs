@@ -33,6 +33,7 @@
 
 pub(crate) mod loops;
 pub(crate) mod tracks;
+pub(crate) mod window;
 
 use crate::config::SystemConfig;
 use crate::frame::CornerIndex;
@@ -45,7 +46,7 @@ use crate::search::{
     CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX, SearchPoint, SearchScratch, predict, relocate,
     search, view_angle,
 };
-use crate::session::{Context, Finished, Found, Sensor, Step, StepState};
+use crate::session::{Finished, Found, Sensor, Step, StepState};
 use crate::tracker::TrackerStats;
 use geom::PinholeCamera;
 use lie::{LieGroup, Se3, Sim3};
@@ -67,7 +68,7 @@ use vision::fast::FrameCorners;
 use vision::image::GrayImage;
 
 /// The context of the monocular sensor's calls.
-type Ctx<'a> = Context<'a, MonoLoops, PinholeCamera, 2>;
+use window::{Ctx, Windows};
 
 /// A frame's measurements: `(track, pixel)`.
 type Measurements = Vec<(TrackId, Vector2<f64>)>;
@@ -114,6 +115,8 @@ pub(crate) struct MonoSensor {
     loaded_anchor: Option<KeyframeId>,
     /// Report each frame's corner tracks (`Step::observed`), for a live view.
     observe: bool,
+    /// Its keyframes' windows in the back-end ([`window`]).
+    windows: Windows,
 }
 
 impl MonoSensor {
@@ -163,6 +166,7 @@ impl MonoSensor {
             localise: false,
             loaded_anchor: None,
             observe: false,
+            windows: Windows::default(),
         }
     }
 
@@ -280,12 +284,24 @@ impl MonoSensor {
             let config = ctx
                 .config
                 .exploration(self.camera.fx, image.width(), image.height());
-            self.explorer = Some(MonoExplorer::new(self.camera, config));
+            let mut explorer = MonoExplorer::new(self.camera, config);
+            explorer.defer_windows(true);
+            self.explorer = Some(explorer);
         }
-        let outcome = {
+        let mut outcome = {
             let explorer = self.explorer.as_mut().expect("made above");
             explorer.process(&**ctx.graph, frame.index, &measurements)
         };
+        // A keyframe's window BA goes to the back-end (`window`): inline, it is solved and
+        // written back now; in its thread, while the next frame's tracks are followed.
+        if let Ok(o) = &mut outcome
+            && let Some(job) = o.window.take()
+        {
+            let explorer = self.explorer.as_mut().expect("explored");
+            if let Some(pose) = self.windows.solve(ctx, explorer, job) {
+                o.camera_from_world = Some(pose);
+            }
+        }
         let explored = t.elapsed();
         ctx.timings.record("mono: exploration", explored);
         // Tracking ends with the exploration (its window BA included); place recognition of
@@ -371,11 +387,12 @@ impl MonoSensor {
                 .record("keyframe: temporary (localising)", explored);
         } else if let Some(k) = o.keyframe {
             earlier_keyframe = self.keyframe(ctx, frame, k);
+            let threaded = ctx.backend.optimiser.as_ref().is_some_and(|w| w.threaded());
             ctx.timings.record(
-                if first {
-                    "keyframe: bootstrap"
-                } else {
-                    "keyframe: exploration with window BA"
+                match (first, threaded) {
+                    (true, _) => "keyframe: bootstrap",
+                    (false, false) => "keyframe: exploration with window BA",
+                    (false, true) => "keyframe: exploration (window BA in its thread)",
                 },
                 explored,
             );
@@ -479,7 +496,7 @@ impl MonoSensor {
             image: Arc::new(frame.gray().clone()),
             frame: frame.index,
         });
-        ctx.backend.keyframe(job);
+        self.windows.loop_job(ctx, job);
         earlier
     }
 
@@ -840,7 +857,8 @@ fn covisible_neighbourhood(
 
 impl Sensor<2> for MonoSensor {
     type Frame = data::sequence::Frame;
-    type Camera = PinholeCamera;
+    type OptimiserData = slam::exploration::SolvedWindow;
+    type Optimiser = window::MonoWindow;
     type LoopData = MonoLoopData;
     type Loops = MonoLoops;
 
@@ -861,7 +879,10 @@ impl Sensor<2> for MonoSensor {
             ));
         }
         let corners = frame_corners(ctx.config, frame.gray());
-        let mut measurements = match self.follow_tracks(ctx, frame, &corners)? {
+        let followed = self.follow_tracks(ctx, frame, &corners)?;
+        // The last keyframe's window, solved meanwhile, into the map this frame reads.
+        self.windows.settle(ctx, self.explorer.as_mut());
+        let mut measurements = match followed {
             Ok(m) => m,
             Err(state) => return Ok(Step::untracked(state, start.elapsed())),
         };
@@ -886,6 +907,7 @@ impl Sensor<2> for MonoSensor {
         ctx: &mut Ctx,
         frame: &data::sequence::Frame,
     ) -> Result<Found, SystemError> {
+        self.windows.settle(ctx, self.explorer.as_mut());
         if !self.relocalisable(ctx.config) {
             return Ok(Found::Nothing(String::new()));
         }
@@ -929,6 +951,7 @@ impl Sensor<2> for MonoSensor {
         _frame: &data::sequence::Frame,
         lost_for: f64,
     ) -> Result<Option<Step>, SystemError> {
+        self.windows.settle(ctx, self.explorer.as_mut());
         if self.localise {
             return Ok(None);
         }
@@ -949,11 +972,19 @@ impl Sensor<2> for MonoSensor {
         )))
     }
 
+    /// A keyframe's window BA solved in the back-end's thread, polled by the session: written
+    /// back at once ([`window`]).
+    fn optimised(&mut self, ctx: &mut Ctx, solved: slam::exploration::SolvedWindow) {
+        self.windows.solved(ctx, self.explorer.as_mut(), solved);
+    }
+
     /// An accepted loop joins the map's loops (the `refind` neighbourhood, the correction at
     /// the end); a live correction (`mono.correct_live`) is written into the graph, and the
     /// exploration goes on in the corrected map (`MonoExplorer::correct_map`: the motion
     /// model and the last pose follow the last keyframe).
     fn loop_data(&mut self, ctx: &mut Ctx, data: MonoLoopData) {
+        // A loop's correction moves the keyframes a window being solved reads.
+        self.windows.settle(ctx, self.explorer.as_mut());
         match data {
             MonoLoopData::Accepted(d) => {
                 let map = ctx.graph.read().map_of(d.current).unwrap_or_default();
@@ -986,6 +1017,7 @@ impl Sensor<2> for MonoSensor {
     /// group's correction already, and the other's would start from it). A graph of one map is
     /// then bundle adjusted ([`MonoSensor::refine`]).
     fn finish(&mut self, ctx: &mut Ctx, _interrupted: bool) -> Result<Finished<2>, SystemError> {
+        self.windows.settle(ctx, self.explorer.as_mut());
         if let Some(explorer) = self.explorer.as_mut().filter(|_| self.localise) {
             let removed = explorer.remove_temporary(&mut ctx.graph.write());
             if !removed.is_empty() {

@@ -171,6 +171,11 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
         }
     }
 
+    /// The worker's name (its thread's).
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
     /// Whether the stage runs in its own thread (it may have died since: then inline).
     pub fn threaded(&self) -> bool {
         matches!(self.runner, Runner::Thread { .. })
@@ -275,6 +280,26 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
             self.fall_back(false);
         } else {
             self.send_waiting(false);
+        }
+        std::mem::take(&mut self.ready)
+    }
+
+    /// Waits until every job given so far is answered (a thread that died meanwhile: its
+    /// jobs run inline) and returns the outputs so far.
+    pub fn wait(&mut self) -> Vec<S::Output> {
+        self.send_waiting(true);
+        while !self.pending.is_empty() {
+            let Runner::Thread { outputs, .. } = &self.runner else {
+                break;
+            };
+            match outputs.recv() {
+                Ok((number, out, waits)) => {
+                    answered(&mut self.pending, number);
+                    self.ready.extend(out);
+                    self.lock_waits.frame(waits);
+                }
+                Err(_) => self.fall_back(false),
+            }
         }
         std::mem::take(&mut self.ready)
     }
@@ -506,22 +531,52 @@ mod tests {
         }
     }
 
+    /// A [`SlowSum`] in its thread with a queue of `queue` jobs.
+    fn slow_worker(queue: usize, fault: Option<Fault>) -> Worker<SlowSum, 3> {
+        Worker::new(
+            "slow sum",
+            Arc::new(SharedGraph::default()),
+            SlowSum(Sum(0)),
+            Box::new(|| SlowSum(Sum(0))),
+            true,
+            queue,
+            false,
+            fault,
+        )
+    }
+
+    /// Waiting answers every job given so far, in order — also when the thread dies: its
+    /// jobs then run inline.
+    #[test]
+    fn waiting_answers_every_job_given_even_when_the_thread_dies() {
+        for fault in [
+            None,
+            Some(Fault::Panic { after: 3 }),
+            Some(Fault::Disconnect { after: 3 }),
+        ] {
+            let mut w = slow_worker(1, fault);
+            for j in 1..=6u64 {
+                w.submit(j);
+                let got = w.wait();
+                assert_eq!(got.len(), 1, "job {j}, {fault:?}");
+                if fault.is_none() || j <= 3 {
+                    assert_eq!(got, vec![j * (j + 1) / 2], "{fault:?}");
+                }
+            }
+            assert_eq!(w.threaded(), fault.is_none());
+            let (last, _, deaths, _) = w.finish();
+            assert!(last.is_empty());
+            assert_eq!(deaths.len(), usize::from(fault.is_some()), "{deaths:?}");
+        }
+    }
+
     /// Jobs given faster than the thread answers them wait for room, none is dropped, and the
     /// answers come in order — also with more waiting than the channel of answers holds, and
     /// when the thread dies while they wait.
     #[test]
     fn jobs_that_find_the_queue_full_wait_and_none_is_lost() {
         for fault in [None, Some(Fault::Panic { after: 50 })] {
-            let mut w = Worker::new(
-                "slow sum",
-                Arc::new(SharedGraph::default()),
-                SlowSum(Sum(0)),
-                Box::new(|| SlowSum(Sum(0))),
-                true,
-                2,
-                false,
-                fault,
-            );
+            let mut w = slow_worker(2, fault);
             let mut out = Vec::new();
             for j in 1..=200 {
                 w.submit(j);

@@ -48,7 +48,7 @@ pub(crate) struct Session<S: Sensor<N>, const N: usize> {
     graph: Arc<SharedGraph<N>>,
     store: Arc<RwLock<KeyframeStore>>,
     sensor: S,
-    backend: Backend<S::Loops, S::Camera, N>,
+    backend: Backend<S::Loops, S::Optimiser, N>,
     log: log::FrameLog,
     /// The timestamp of the first of the lost frames up to now (`None` while tracked).
     lost_since: Option<f64>,
@@ -106,7 +106,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
         graph: Arc<SharedGraph<N>>,
         store: Arc<RwLock<KeyframeStore>>,
         sensor: S,
-        backend: Backend<S::Loops, S::Camera, N>,
+        backend: Backend<S::Loops, S::Optimiser, N>,
         record: RunRecord,
     ) -> Self {
         Session {
@@ -156,7 +156,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
     }
 
     /// The sensor, and what it reads and writes of the session.
-    fn split(&mut self) -> (&mut S, Context<'_, S::Loops, S::Camera, N>) {
+    fn split(&mut self) -> (&mut S, Context<'_, S::Loops, S::Optimiser, N>) {
         (
             &mut self.sensor,
             Context {
@@ -304,7 +304,7 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
         }
     }
 
-    fn take_optimised(&mut self, outputs: Vec<Optimised>, threaded: bool) {
+    fn take_optimised(&mut self, outputs: Vec<Optimised<S::OptimiserData>>, threaded: bool) {
         for out in outputs {
             match out {
                 Optimised::Stats(s) => {
@@ -318,6 +318,10 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
                     self.optimisations.push(s);
                 }
                 Optimised::Failed(e) => self.warnings.push(e),
+                Optimised::Sensor(data) => {
+                    let (sensor, mut ctx) = self.split();
+                    sensor.optimised(&mut ctx, data);
+                }
             }
         }
     }
@@ -405,6 +409,13 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
     /// Stops the workers (the loop closer first: it may still wake the optimiser), collecting
     /// what they still give and what became of them.
     fn stop_backend(&mut self) {
+        // The optimiser's jobs answered first: what they give back may give the loop closer
+        // more work (a monocular keyframe's loop job waits for its window).
+        if let Some(optimiser) = &mut self.backend.optimiser {
+            let threaded = optimiser.threaded();
+            let outputs = optimiser.wait();
+            self.take_optimised(outputs, threaded);
+        }
         if let Some(loops) = self.backend.loops.take() {
             self.loop_queue_full = (loops.queue_full, loops.max_waiting);
             let threaded = loops.threaded();
@@ -417,12 +428,11 @@ impl<S: Sensor<N>, const N: usize> Session<S, N> {
             self.take_loop_outputs(outputs);
         }
         if let Some(optimiser) = self.backend.optimiser.take() {
-            let threaded = optimiser.threaded();
+            let (threaded, name) = (optimiser.threaded(), optimiser.name());
             let (outputs, _, deaths, waits) = optimiser.finish();
             self.warnings.extend(deaths);
             if threaded {
-                self.backend_lock_waits
-                    .push(("double window optimisation", waits.summary()));
+                self.backend_lock_waits.push((name, waits.summary()));
             }
             self.take_optimised(outputs, threaded);
         }

@@ -2,7 +2,8 @@
 //! implements, what it gives back per frame ([`Step`]) and at the end ([`Finished`]), what it
 //! may use of the session meanwhile ([`Context`]: the graph, the keyframes' images, the
 //! back-end), and the back-end's stages the session runs for every sensor
-//! ([`Optimise`], the loop stage's [`LoopOutput`]).
+//! ([`Optimise`] and what an optimiser stage gives back, [`Optimised`]; the loop stage's
+//! [`LoopOutput`]).
 
 use super::backend::{Fault, Stage, Worker};
 use crate::config::SystemConfig;
@@ -143,13 +144,15 @@ pub(crate) struct Optimise<C> {
     camera: C,
 }
 
-/// What an optimisation gives back.
+/// What an optimisation stage gives back.
 #[derive(Debug)]
-pub(crate) enum Optimised {
-    /// Its statistics.
+pub(crate) enum Optimised<D> {
+    /// A double window optimisation's statistics.
     Stats(DwoStats),
     /// Why it failed.
     Failed(String),
+    /// What only the sensor reads (the monocular keyframe's solved window).
+    Sensor(D),
 }
 
 /// A camera the double window optimisation can run with, in its own thread.
@@ -165,9 +168,9 @@ impl<C, const N: usize> DwoCamera<N> for C where
 
 impl<C: DwoCamera<N>, const N: usize> Stage<N> for Optimise<C> {
     type Job = ();
-    type Output = Optimised;
+    type Output = Optimised<std::convert::Infallible>;
 
-    fn run(&mut self, graph: &SharedGraph<N>, _: &(), out: &mut Vec<Optimised>) {
+    fn run(&mut self, graph: &SharedGraph<N>, _: &(), out: &mut Vec<Self::Output>) {
         if graph.read().num_keyframes() < 2 {
             return;
         }
@@ -203,28 +206,29 @@ pub struct Faults {
 }
 
 /// The back-end: the optimiser and the loop closer, each in a thread or inline.
-pub(crate) struct Backend<L: Stage<N>, C: DwoCamera<N>, const N: usize> {
-    /// Double window optimisation (`None`: the sensor optimises its keyframes itself).
-    pub optimiser: Option<Worker<Optimise<C>, N>>,
+pub(crate) struct Backend<L: Stage<N>, O: Stage<N>, const N: usize> {
+    /// The keyframes' optimisation: the double window ([`Optimise`]), or the monocular
+    /// keyframe's window BA (`crate::mono::window`).
+    pub optimiser: Option<Worker<O, N>>,
     /// Large-scale loop closure (`None`: no vocabulary, or loops disabled).
     pub loops: Option<Worker<L, N>>,
 }
 
-impl<L: Stage<N>, C: DwoCamera<N>, const N: usize> Backend<L, C, N> {
-    /// A new keyframe for the back-end: the loop closer's job, then an optimisation (inline:
+impl<L: Stage<N>, O: Stage<N>, const N: usize> Backend<L, O, N> {
+    /// A new keyframe for the back-end: the loop closer's job, then the optimiser's (inline:
     /// at once, in this order; threaded: queued, the optimiser woken).
-    pub fn keyframe(&mut self, job: Option<L::Job>) {
+    pub fn keyframe(&mut self, job: Option<L::Job>, optimise: Option<O::Job>) {
         if let (Some(loops), Some(job)) = (&mut self.loops, job) {
             loops.submit(job);
         }
-        if let Some(optimiser) = &mut self.optimiser {
-            optimiser.submit(());
+        if let (Some(optimiser), Some(job)) = (&mut self.optimiser, optimise) {
+            optimiser.submit(job);
         }
     }
 }
 
 /// What the sensor reads and writes of the session while it handles a frame.
-pub(crate) struct Context<'a, L: Stage<N>, C: DwoCamera<N>, const N: usize> {
+pub(crate) struct Context<'a, L: Stage<N>, O: Stage<N>, const N: usize> {
     /// The configuration.
     pub config: &'a SystemConfig,
     /// The shared graph.
@@ -234,7 +238,7 @@ pub(crate) struct Context<'a, L: Stage<N>, C: DwoCamera<N>, const N: usize> {
     /// Where stage times go.
     pub timings: &'a mut StageTimings,
     /// The back-end.
-    pub backend: &'a mut Backend<L, C, N>,
+    pub backend: &'a mut Backend<L, O, N>,
     /// Loops the keyframe pipeline closed (metric loops).
     pub loops: &'a mut Vec<LoopEvent>,
     /// Things that failed without stopping the run.
@@ -246,7 +250,7 @@ pub(crate) struct Context<'a, L: Stage<N>, C: DwoCamera<N>, const N: usize> {
     pub optimisations: &'a mut Vec<DwoStats>,
 }
 
-impl<L: Stage<N>, C: DwoCamera<N>, const N: usize> Context<'_, L, C, N> {
+impl<L: Stage<N>, O: Stage<N>, const N: usize> Context<'_, L, O, N> {
     /// The frames keyframes `keyframe` and `old` were made from (`usize::MAX` if unknown).
     pub fn frames_of(&self, keyframe: KeyframeId, old: KeyframeId) -> (usize, usize) {
         let store = read_lock(self.store);
@@ -268,8 +272,10 @@ pub(crate) struct Finished<const N: usize> {
 pub(crate) trait Sensor<const N: usize>: Sized {
     /// A frame prepared for tracking.
     type Frame;
-    /// The camera of the double window optimisation.
-    type Camera: DwoCamera<N>;
+    /// What the sensor's optimiser stage gives back that only the sensor reads.
+    type OptimiserData;
+    /// The keyframes' optimisation stage.
+    type Optimiser: Stage<N, Output = Optimised<Self::OptimiserData>>;
     /// What the sensor's loop stage gives back that only the sensor reads.
     type LoopData;
     /// The loop-closure stage.
@@ -278,14 +284,14 @@ pub(crate) trait Sensor<const N: usize>: Sized {
     /// Prepares `frame` (its index and timestamp are kept by the session).
     fn prepare(
         &mut self,
-        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
         frame: data::sequence::Frame,
     ) -> Result<Self::Frame, SystemError>;
 
     /// Tracks a frame in the map (making it a keyframe if it is one).
     fn track(
         &mut self,
-        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
         frame: &Self::Frame,
     ) -> Result<Step, SystemError>;
 
@@ -293,7 +299,7 @@ pub(crate) trait Sensor<const N: usize>: Sized {
     /// there.
     fn relocalise(
         &mut self,
-        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
         frame: &Self::Frame,
     ) -> Result<Found, SystemError>;
 
@@ -304,22 +310,29 @@ pub(crate) trait Sensor<const N: usize>: Sized {
     /// cannot start one (a frame too dark to give the next frames anything to track).
     fn start_map(
         &mut self,
-        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
         frame: &Self::Frame,
         lost_for: f64,
     ) -> Result<Option<Step>, SystemError>;
 
+    /// What the optimiser stage gave back for the sensor alone.
+    fn optimised(
+        &mut self,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
+        data: Self::OptimiserData,
+    );
+
     /// What the loop stage gave back for the sensor alone.
     fn loop_data(
         &mut self,
-        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
         data: Self::LoopData,
     );
 
     /// Ends the run (the back-end has stopped): the final optimisation or loop correction.
     fn finish(
         &mut self,
-        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
         interrupted: bool,
     ) -> Result<Finished<N>, SystemError>;
 
@@ -335,7 +348,7 @@ pub(crate) trait Sensor<const N: usize>: Sized {
     /// only localised in it, nothing is added.
     fn restore(
         &mut self,
-        ctx: &mut Context<'_, Self::Loops, Self::Camera, N>,
+        ctx: &mut Context<'_, Self::Loops, Self::Optimiser, N>,
         features: Vec<(KeyframeId, KeyframeFeatures)>,
         localise: bool,
     ) -> Result<(), SystemError>;
