@@ -153,7 +153,7 @@ impl System {
                 // One keyframe window at a time: the tracking thread waits for it before the
                 // next frame reads the map (`mono::window`).
                 let optimiser = Worker::new(
-                    "keyframe window BA",
+                    "keyframe window",
                     graph.clone(),
                     MonoWindow,
                     Box::new(|| MonoWindow),

@@ -140,7 +140,7 @@ fn check(name: &str, n: usize, mono: bool) {
     // result (its jobs take the graph's locks).
     let threads: Vec<&str> = clean.backend_lock_waits.iter().map(|(t, _)| *t).collect();
     let expected: &[&str] = if mono {
-        &["loop closure", "keyframe window BA"]
+        &["loop closure", "keyframe window"]
     } else {
         &["loop closure", "double window optimisation"]
     };
@@ -152,7 +152,7 @@ fn check(name: &str, n: usize, mono: bool) {
         );
     }
     let optimiser = if mono {
-        "keyframe window BA thread"
+        "keyframe window thread"
     } else {
         "double window optimisation thread"
     };

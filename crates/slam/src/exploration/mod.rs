@@ -303,7 +303,7 @@ impl ExploredMap {
 }
 
 /// What [`MonoExplorer::process`] did with a frame.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct FrameOutcome {
     /// The frame's estimated pose, `None` while bootstrapping.
     pub camera_from_world: Option<Se3>,
@@ -324,8 +324,9 @@ pub struct FrameOutcome {
     /// How long the keyframe's window took (copied out, solved, written back): the part of a
     /// keyframe's time that another thread could take over.
     pub window_time: Option<std::time::Duration>,
-    /// A keyframe's BA left to the caller (`defer_windows`): solve it ([`WindowJob::solve`],
-    /// in any thread) and give it back ([`MonoExplorer::apply_window`]) before the next frame.
+    /// A keyframe's window left to the caller (`defer_windows`): solve it
+    /// ([`WindowJob::solve`], in any thread) and give it back ([`MonoExplorer::apply_window`])
+    /// before the next frame.
     pub window: Option<WindowJob>,
 }
 
@@ -418,10 +419,10 @@ impl MonoExplorer {
         }
     }
 
-    /// Leaves each new keyframe's BA to the caller (`FrameOutcome::window`): a live system
-    /// solves it in a back-end thread while the next frame's tracks are followed, and gives it
-    /// back before the next frame is explored ([`MonoExplorer::apply_window`]). The double
-    /// window is not deferred.
+    /// Leaves each new keyframe's window — its BA or the double window — to the caller
+    /// (`FrameOutcome::window`): a live system solves it in a back-end thread while the next
+    /// frame's tracks are followed, and gives it back before the next frame is explored
+    /// ([`MonoExplorer::apply_window`]).
     pub fn defer_windows(&mut self, defer: bool) {
         self.defer_windows = defer;
     }
@@ -694,12 +695,11 @@ impl MonoExplorer {
         }
     }
 
-    /// A frame tracked: steps 1–4 and a keyframe's registration under one write lock, its
-    /// window's optimisation with the lock taken per step: the double window
-    /// ([`MonoExplorer::double_window`]), or the keyframe BA — read under a read lock, solved
-    /// with none, written back under a write lock ([`WindowJob::solve`],
-    /// [`MonoExplorer::apply_window`]) — unless the caller solves it (`defer_windows`:
-    /// the outcome's `window`).
+    /// A frame tracked: steps 1–4 and a keyframe's registration under one write lock, then its
+    /// window's optimisation with the lock taken per step — the keyframe BA (read under a read
+    /// lock, solved with none) or the double window (its own read and write), written back
+    /// under a write lock ([`WindowJob::solve`], [`MonoExplorer::apply_window`]) — unless the
+    /// caller solves it (`defer_windows`: the outcome's `window`).
     fn track(
         &mut self,
         graph: &mut impl GraphAccess<2>,
@@ -717,29 +717,17 @@ impl MonoExplorer {
             last_pose,
             velocity,
         )?;
-        let Some(k) = tracked.keyframe else {
+        if self.defer_windows {
+            return Ok(tracked);
+        }
+        let Some(job) = tracked.window.take() else {
             return Ok(tracked);
         };
         let started = std::time::Instant::now();
-        let pose = if let Some(job) = tracked.window.take() {
-            if self.defer_windows {
-                tracked.window = Some(job);
-                return Ok(tracked);
-            }
-            let solved = job.solve(&mut *graph)?;
-            // Stale only if another thread moved the window's keyframes meanwhile.
-            self.apply_window(&mut graph.write(), solved)?
-        } else {
-            tracked.optimisation = self.double_window(graph, k)?;
-            let pose = rigid_pose(&graph.read(), k);
-            if let Some(last) = self.frame_poses.last_mut() {
-                last.1 = pose;
-            }
-            if let State::Tracking { last_pose, .. } = &mut self.state {
-                *last_pose = pose;
-            }
-            Some(pose)
-        };
+        let solved = job.solve(&mut *graph)?;
+        tracked.optimisation = solved.double_window_stats();
+        // Stale only if another thread moved the window's keyframes meanwhile.
+        let pose = self.apply_window(&mut graph.write(), solved)?;
         tracked.window_time = Some(started.elapsed());
         if pose.is_some() {
             tracked.camera_from_world = pose;
@@ -827,9 +815,8 @@ impl MonoExplorer {
                 crate::mapping::register_locally(graph, k, self.config.theta, Some(previous))
                     .and_then(|_| graph.set_reference(k))
                     .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            } else {
-                window = Some(self.window_job(graph, k));
             }
+            window = Some(self.window_job(graph, k));
         }
         self.frame_poses.push((frame, pose));
         self.state = State::Tracking {
@@ -849,39 +836,6 @@ impl MonoExplorer {
             window_time: None,
             window,
         })
-    }
-
-    /// Optimises new keyframe `k`'s window by the double window (`double_window`, not while
-    /// localising), which copies its problem out under a read lock, solves with no lock held
-    /// and writes back under a write lock; then removes what the optimum does not explain and
-    /// moves the filters' anchors.
-    fn double_window(
-        &mut self,
-        graph: &mut impl GraphAccess<2>,
-        k: KeyframeId,
-    ) -> Result<Option<DwoStats>, ExplorationError> {
-        let dwo = self
-            .double_window
-            .as_mut()
-            .expect("a keyframe without a window job has the double window");
-        let stats = dwo
-            .optimise(&mut *graph, &self.camera)
-            .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-        let mut g = graph.write();
-        // What the optimum does not explain leaves the map, as after the BA.
-        if self.config.remove_outliers {
-            let local = self.local_keyframes(&g, k);
-            self.remove_unexplained(&mut g, k, &local)?;
-        }
-        // The filters' anchors moved with their keyframes.
-        let anchors: HashSet<usize> = self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
-        for a in anchors {
-            if let Some(&ka) = self.keyframe_of_frame.get(&a) {
-                let t = rigid_pose(&g, ka);
-                self.filters.set_anchor_pose(a, t);
-            }
-        }
-        Ok(Some(stats))
     }
 
     /// Whether no keyframe covers the view of a camera at `pose` looking at a scene

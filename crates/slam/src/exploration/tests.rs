@@ -556,9 +556,9 @@ fn a_keyframe_window_is_solved_with_no_lock_held() {
                 Some(_) if after_bootstrap => {
                     keyframes += 1;
                     // The tracking's write; the window read, solved, written back (the double
-                    // window then removes outliers and moves the filters' anchors under one
-                    // more write, and reads the keyframe's new pose).
-                    let expected = if dwo { "wrwwr" } else { "wrw" };
+                    // window writes its optimum back itself, then removes outliers and moves
+                    // the filters' anchors under one more write).
+                    let expected = if dwo { "wrww" } else { "wrw" };
                     assert_eq!(logged.log, expected, "frame {f}");
                 }
                 None if outcome.camera_from_world.is_some() => {
@@ -603,44 +603,13 @@ fn a_keyframe_window_is_solved_with_no_lock_held() {
     }
 }
 
-/// A keyframe's BA left to the caller (`defer_windows`) and solved in another thread — while
-/// that thread holds no lock and another one reads the graph — gives the same map as the one
-/// the explorer solves itself; a window whose keyframes moved meanwhile (a loop corrected) is
-/// stale and writes nothing.
+/// A keyframe's window — its BA or the double window — left to the caller (`defer_windows`)
+/// and solved in another thread gives the same map as the one the explorer solves itself; a
+/// BA window whose keyframes moved meanwhile (a loop corrected) is stale and writes nothing.
 #[test]
 fn a_deferred_window_solved_in_another_thread_gives_the_same_map() {
     let (_, frames) = sideways(3, 60, 0.5);
     let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
-    let mut owned = SlamGraph::new();
-    let mut explorer = MonoExplorer::new(camera, map_reuse(0.5));
-    let mut inline_poses = Vec::new();
-    for (f, m) in frames.iter().enumerate() {
-        let o = explorer.process(&mut owned, f, m).unwrap();
-        assert!(o.window.is_none());
-        inline_poses.push(o.camera_from_world);
-    }
-    let shared = SharedGraph::new(SlamGraph::new());
-    let mut deferred = MonoExplorer::new(camera, map_reuse(0.5));
-    deferred.defer_windows(true);
-    let mut solved_elsewhere = 0;
-    for (f, m) in frames.iter().enumerate() {
-        let mut o = deferred.process(&shared, f, m).unwrap();
-        if let Some(job) = o.window.take() {
-            assert_eq!(Some(job.keyframe()), o.keyframe);
-            let solved = std::thread::scope(|s| s.spawn(|| job.solve(&shared)).join())
-                .unwrap()
-                .unwrap();
-            let pose = deferred
-                .apply_window(&mut shared.write(), solved)
-                .unwrap()
-                .expect("nothing moved the window meanwhile");
-            o.camera_from_world = Some(pose);
-            solved_elsewhere += 1;
-        }
-        assert_eq!(o.camera_from_world, inline_poses[f], "frame {f}");
-    }
-    assert!(solved_elsewhere >= 5, "{solved_elsewhere} windows");
-    let shared = shared.into_inner();
     let map = |g: &SlamGraph<2>| -> (Vec<_>, Vec<_>) {
         (
             g.keyframes()
@@ -651,7 +620,13 @@ fn a_deferred_window_solved_in_another_thread_gives_the_same_map() {
                 .collect(),
         )
     };
-    assert_eq!(map(&shared), map(&owned));
+    let double_window = ExplorationConfig {
+        double_window: Some(crate::dwo::DwoParams::new(10, 20, 500.0, 0.5)),
+        ..map_reuse(0.5)
+    };
+    for config in [map_reuse(0.5), double_window] {
+        deferred_windows_give_the_same_map(camera, &frames, config, map);
+    }
 
     // A window whose keyframe moved between reading and writing back is stale.
     let mut graph = SlamGraph::new();
@@ -680,4 +655,45 @@ fn a_deferred_window_solved_in_another_thread_gives_the_same_map() {
         }
     }
     assert!(stale >= 3, "{stale} stale windows");
+}
+
+/// The map of `frames` with `config`, its windows solved by the explorer and, deferred, in
+/// another thread: the same frames' poses and the same `map`.
+fn deferred_windows_give_the_same_map<M: PartialEq + std::fmt::Debug>(
+    camera: PinholeCamera,
+    frames: &[Vec<(TrackId, Vector2<f64>)>],
+    config: ExplorationConfig,
+    map: impl Fn(&SlamGraph<2>) -> M,
+) {
+    let mut owned = SlamGraph::new();
+    let mut explorer = MonoExplorer::new(camera, config.clone());
+    let mut inline_poses = Vec::new();
+    for (f, m) in frames.iter().enumerate() {
+        let o = explorer.process(&mut owned, f, m).unwrap();
+        assert!(o.window.is_none());
+        inline_poses.push(o.camera_from_world);
+    }
+    let shared = SharedGraph::new(SlamGraph::new());
+    let mut deferred = MonoExplorer::new(camera, config);
+    deferred.defer_windows(true);
+    let mut solved_elsewhere = 0;
+    for (f, m) in frames.iter().enumerate() {
+        let mut o = deferred.process(&shared, f, m).unwrap();
+        if let Some(job) = o.window.take() {
+            assert_eq!(Some(job.keyframe()), o.keyframe);
+            let solved = std::thread::scope(|s| s.spawn(|| job.solve(&shared)).join())
+                .unwrap()
+                .unwrap();
+            let pose = deferred
+                .apply_window(&mut shared.write(), solved)
+                .unwrap()
+                .expect("nothing moved the window meanwhile");
+            o.camera_from_world = Some(pose);
+            solved_elsewhere += 1;
+        }
+        assert_eq!(o.camera_from_world, inline_poses[f], "frame {f}");
+    }
+    assert!(solved_elsewhere >= 5, "{solved_elsewhere} windows");
+    let shared = shared.into_inner();
+    assert_eq!(map(&shared), map(&owned));
 }

@@ -8,7 +8,7 @@ use crate::factors::point_to_inverse_depth;
 use crate::map::{KeyframeId, PointId, SlamGraph};
 use geom::CameraModel;
 use lie::{LieGroup, Se3, Sim3};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 
 impl MonoExplorer {
     /// The keyframes the BA of new keyframe `k` optimises, oldest first
@@ -124,20 +124,41 @@ impl MonoExplorer {
             fixed_observers: self.config.fixed_observers,
             iterations: self.config.ba_iterations,
             remove_outliers: self.config.remove_outliers,
+            double_window: self.double_window.clone().filter(|_| !self.localise),
         }
     }
 
     /// Writes a solved window back into `graph` (the keyframes' poses, the filters' anchors,
     /// the points anchored in their possibly moved anchors; the measurements the optimum does
-    /// not explain leave the map) and moves the frames' poses after the keyframe with it:
-    /// the keyframe's new pose, or `None` if the window is stale — a keyframe of it moved
-    /// since it was read (a loop corrected meanwhile): then nothing is written. Points changed
-    /// or removed since keep their newer state.
+    /// not explain leave the map — after the double window, which wrote its optimum back
+    /// itself, those its window's keyframes measure) and moves the frames' poses after the
+    /// keyframe with it: the keyframe's new pose, or `None` if the window is stale — a keyframe
+    /// of it moved since it was read (a loop corrected meanwhile): then nothing is written.
+    /// Points changed or removed since keep their newer state.
     pub fn apply_window(
         &mut self,
         graph: &mut SlamGraph<2>,
         solved: SolvedWindow,
     ) -> Result<Option<Se3>, ExplorationError> {
+        let k = solved.keyframe;
+        if let Some((optimiser, _)) = solved.double_window {
+            self.double_window = Some(optimiser);
+            // What the optimum does not explain leaves the map, as after the BA.
+            if self.config.remove_outliers {
+                let local = self.local_keyframes(graph, k);
+                self.remove_unexplained(graph, k, &local)?;
+            }
+            // The filters' anchors moved with their keyframes.
+            let anchors: HashSet<usize> =
+                self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
+            for a in anchors {
+                if let Some(&ka) = self.keyframe_of_frame.get(&a) {
+                    let t = rigid_pose(graph, ka);
+                    self.filters.set_anchor_pose(a, t);
+                }
+            }
+            return Ok(Some(self.frames_moved(graph, k)));
+        }
         let stale = solved.window.iter().any(|&w| {
             graph
                 .keyframe(w)
@@ -146,8 +167,6 @@ impl MonoExplorer {
         if stale {
             return Ok(None);
         }
-        let k = solved.keyframe;
-        let before = rigid_pose(graph, k);
         for (&w, t) in solved.local.iter().zip(&solved.poses) {
             graph
                 .set_pose(w, Sim3::from_se3(t))
@@ -177,9 +196,21 @@ impl MonoExplorer {
             })
             .collect();
         self.drop_measurements(graph, k, outliers)?;
-        // The frames tracked since the keyframe move with it (`T_j·T_k⁻¹·T_k'`).
+        Ok(Some(self.frames_moved(graph, k)))
+    }
+
+    /// Keyframe `k`'s window moved it: the frame it was made from takes its new pose, and the
+    /// frames tracked since move with it (`T_j·T_k⁻¹·T_k'`, `T_k` the pose tracking gave the
+    /// keyframe). Returns the new pose.
+    fn frames_moved(&mut self, graph: &SlamGraph<2>, k: KeyframeId) -> Se3 {
         let after = rigid_pose(graph, k);
         let frame = self.map.keyframes[k.index()].frame;
+        let before = self
+            .frame_poses
+            .iter()
+            .rev()
+            .find(|(f, _)| *f == frame)
+            .map_or(after, |(_, t)| *t);
         let moved = |t: &Se3| t.compose(&before.inverse()).compose(&after);
         for (f, t) in self.frame_poses.iter_mut().rev() {
             match (*f).cmp(&frame) {
@@ -200,6 +231,6 @@ impl MonoExplorer {
                 moved(last_pose)
             };
         }
-        Ok(Some(after))
+        after
     }
 }

@@ -5,6 +5,7 @@
 use super::error::ExplorationError;
 use super::poses::rigid_pose;
 use crate::ba::{BaMode, BundleAdjustment, Gauge, Observation};
+use crate::dwo::{DoubleWindowOptimiser, DwoStats};
 use crate::map::{GraphAccess, KeyframeId, PointId, SlamGraph};
 use geom::{CameraModel, PinholeCamera};
 use lie::{LieGroup, Se3};
@@ -21,14 +22,16 @@ pub(super) fn solver(iterations: usize) -> SolverOptions {
     }
 }
 
-/// A new keyframe's BA (thesis §3.3.3) on Euclidean points, as [`MonoExplorer`] decides it:
+/// A new keyframe's window as [`MonoExplorer`] decides it: the double window (thesis §6.2,
+/// when the job carries the optimiser: `double_window`), or the keyframe BA (thesis §3.3.3) on
+/// Euclidean points:
 /// the window's keyframes are optimised with the points they measure; up to
 /// `fixed_observers` other keyframes measuring those points join as fixed poses, and with
 /// fewer than two of them the window's two oldest keyframes are fixed (they anchor the window
 /// to the trajectory and fix the scale gauge). Points measured once in all are held fixed, as
 /// are, localising, the loaded map's. Its problem is read from the graph when it is solved
 /// ([`WindowJob::solve`]), in whatever thread solves it.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct WindowJob {
     /// The new keyframe.
     pub(super) keyframe: KeyframeId,
@@ -42,6 +45,9 @@ pub struct WindowJob {
     pub(super) fixed_observers: usize,
     pub(super) iterations: usize,
     pub(super) remove_outliers: bool,
+    /// The double window instead of the BA: the explorer's optimiser (its previous window),
+    /// given back with the answer.
+    pub(super) double_window: Option<DoubleWindowOptimiser>,
 }
 
 /// A solved [`WindowJob`], for [`MonoExplorer::apply_window`].
@@ -59,6 +65,9 @@ pub struct SolvedWindow {
     pub(super) points: Vec<(PointId, Vector3<f64>)>,
     /// The measurements the optimum does not explain (`remove_outliers`).
     pub(super) outliers: Vec<(KeyframeId, PointId)>,
+    /// The double window's optimiser after the optimisation (it wrote the window back
+    /// itself) and its statistics.
+    pub(super) double_window: Option<(DoubleWindowOptimiser, DwoStats)>,
     /// How long reading and solving took.
     pub time: std::time::Duration,
 }
@@ -67,6 +76,11 @@ impl SolvedWindow {
     /// The new keyframe whose window this is.
     pub fn keyframe(&self) -> KeyframeId {
         self.keyframe
+    }
+
+    /// The double window's statistics (`None`: the keyframe BA).
+    pub fn double_window_stats(&self) -> Option<DwoStats> {
+        self.double_window.as_ref().map(|(_, s)| s.clone())
     }
 }
 
@@ -77,9 +91,28 @@ impl WindowJob {
     }
 
     /// Reads the problem under a read lock of `graph`, solves it with no lock held, and
-    /// finds the measurements the optimum does not explain ([`GraphAccess`]).
+    /// finds the measurements the optimum does not explain ([`GraphAccess`]); the double
+    /// window writes its optimum back itself, under a write lock
+    /// ([`DoubleWindowOptimiser::optimise`]).
     pub fn solve(&self, mut graph: impl GraphAccess<2>) -> Result<SolvedWindow, ExplorationError> {
         let started = std::time::Instant::now();
+        if let Some(optimiser) = &self.double_window {
+            let mut optimiser = optimiser.clone();
+            let stats = optimiser
+                .optimise(&mut graph, &self.camera)
+                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+            return Ok(SolvedWindow {
+                keyframe: self.keyframe,
+                version: 0,
+                local: Vec::new(),
+                poses: Vec::new(),
+                window: Vec::new(),
+                points: Vec::new(),
+                outliers: Vec::new(),
+                double_window: Some((optimiser, stats)),
+                time: started.elapsed(),
+            });
+        }
         let (
             WindowProblem {
                 window,
@@ -132,6 +165,7 @@ impl WindowJob {
                 .map(|(&p, y)| (p, y))
                 .collect(),
             outliers,
+            double_window: None,
             time: started.elapsed(),
         })
     }

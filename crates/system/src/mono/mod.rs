@@ -361,19 +361,6 @@ impl MonoSensor {
         relocalised: Option<Relocalisation>,
         explored: Duration,
     ) -> Step {
-        // The keyframe's window (copied out, solved, written back), within its exploration
-        // time: what a back-end thread could take over.
-        if let Some(t) = o.window_time {
-            let stage = if o.optimisation.is_some() {
-                "keyframe: double window"
-            } else {
-                "keyframe: window BA"
-            };
-            ctx.timings.record(stage, t);
-        }
-        if let Some(stats) = o.optimisation {
-            ctx.optimisations.push(stats);
-        }
         let explorer = self.explorer.as_ref().expect("explored");
         let first = explorer.map_keyframes().count() <= 2;
         let last = explorer.map_keyframes().last();

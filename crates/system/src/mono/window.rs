@@ -1,9 +1,12 @@
-//! The monocular keyframe's window BA as a back-end stage (thesis §6.5.2: the tracking thread
-//! hands a keyframe's optimisation to the back-end and goes on).
+//! The monocular keyframe's window — its BA, or the double window (`mono.double_window`) — as
+//! a back-end stage (thesis §6.5.2: the tracking thread hands a keyframe's optimisation to the
+//! back-end and goes on).
 //!
-//! The exploration leaves a new keyframe's BA to the sensor (`MonoExplorer::defer_windows`):
-//! the job goes to the back-end's optimiser worker ([`MonoWindow`]), which reads its problem
-//! from the shared graph under a read lock and solves it with none, while the tracking thread
+//! The exploration leaves a new keyframe's window to the sensor
+//! (`MonoExplorer::defer_windows`): the job goes to the back-end's optimiser worker
+//! ([`MonoWindow`]), which reads its problem from the shared graph under a read lock and
+//! solves it with none (the double window writes its optimum back itself, under a write
+//! lock: the tracking thread does not touch the map meanwhile), while the tracking thread
 //! records the frame and follows the next frame's corner tracks (which need no map). Before
 //! anything of the next frame reads the map — its tracks checked against the map points, the
 //! points re-found, the exploration — or anything changes the map (a loop correction, a new
@@ -26,7 +29,8 @@ use std::time::Instant;
 /// The context of the monocular sensor's calls.
 pub(super) type Ctx<'a> = Context<'a, MonoLoops, MonoWindow, 2>;
 
-/// The keyframe window BA stage: solves each job on the shared graph.
+/// The keyframe window stage: solves each job — a keyframe's BA, or the double window — on
+/// the shared graph.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct MonoWindow;
 
@@ -38,7 +42,7 @@ impl Stage<2> for MonoWindow {
         out.push(match job.solve(graph) {
             Ok(solved) => Optimised::Sensor(solved),
             Err(e) => Optimised::Failed(format!(
-                "keyframe {}'s window BA failed (not written back): {e}",
+                "keyframe {}'s window optimisation failed (not written back): {e}",
                 job.keyframe().index()
             )),
         });
@@ -91,7 +95,7 @@ impl Windows {
         let outputs = optimiser.wait();
         if threaded && !outputs.is_empty() {
             ctx.timings
-                .record("keyframe: window BA, waited for", t.elapsed());
+                .record("keyframe: window, waited for", t.elapsed());
         }
         let pose = take(ctx, explorer, outputs);
         self.answered(ctx);
@@ -159,16 +163,28 @@ fn apply(ctx: &mut Ctx, explorer: &mut MonoExplorer, solved: SolvedWindow) -> Op
     let t = Instant::now();
     let (k, solve) = (solved.keyframe(), solved.time);
     let threaded = ctx.backend.optimiser.as_ref().is_some_and(|w| w.threaded());
+    let stats = solved.double_window_stats();
     let applied = explorer.apply_window(&mut ctx.graph.write(), solved);
-    if threaded {
-        ctx.timings
-            .record("keyframe: window BA in its thread", solve);
-        ctx.timings
-            .record("keyframe: window BA, written back", t.elapsed());
+    let (alone, in_thread, written) = if stats.is_some() {
+        (
+            "keyframe: double window",
+            "keyframe: double window in its thread",
+            "keyframe: double window, written back",
+        )
     } else {
-        ctx.timings
-            .record("keyframe: window BA", solve + t.elapsed());
+        (
+            "keyframe: window BA",
+            "keyframe: window BA in its thread",
+            "keyframe: window BA, written back",
+        )
+    };
+    if threaded {
+        ctx.timings.record(in_thread, solve);
+        ctx.timings.record(written, t.elapsed());
+    } else {
+        ctx.timings.record(alone, solve + t.elapsed());
     }
+    ctx.optimisations.extend(stats);
     match applied {
         Ok(Some(pose)) => Some(pose),
         Ok(None) => {
