@@ -379,7 +379,7 @@ pub struct MonoExplorer {
     /// Localising: the keyframes made where the map does not cover the view, oldest first
     /// ([`MonoExplorer::remove_temporary`]).
     temporary: Vec<KeyframeId>,
-    /// A keyframe's BA is left to the caller ([`MonoExplorer::defer_windows`]).
+    /// A keyframe's window is left to the caller ([`MonoExplorer::defer_windows`]).
     defer_windows: bool,
 }
 

@@ -220,35 +220,50 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
     /// inline).
     fn send_waiting(&mut self, wait: bool) {
         while let Some((number, job)) = self.waiting.front() {
-            let Runner::Thread {
-                jobs,
-                outputs,
-                handle,
-            } = &self.runner
-            else {
+            let Runner::Thread { jobs, handle, .. } = &self.runner else {
                 break;
             };
-            match jobs.try_send((*number, job.clone())) {
+            let (sent, finished) = (jobs.try_send((*number, job.clone())), handle.is_finished());
+            match sent {
                 Ok(()) => {
                     let sent = self.waiting.pop_front().expect("the front");
                     self.pending.push_back(sent);
                 }
-                Err(TrySendError::Full(_)) if wait => match outputs.recv() {
-                    Ok((number, out, waits)) => {
-                        answered(&mut self.pending, number);
-                        self.ready.extend(out);
-                        self.lock_waits.frame(waits);
-                    }
+                Err(TrySendError::Full(_)) if wait => match self.next_answer(true) {
+                    Ok(answer) => self.take(answer),
                     Err(_) => break,
                 },
                 // A thread that has ended cannot empty its queue.
-                Err(TrySendError::Full(_)) if !handle.is_finished() => break,
+                Err(TrySendError::Full(_)) if !finished => break,
                 Err(_) => {
                     self.fall_back(false);
                     break;
                 }
             }
         }
+    }
+
+    /// The thread's next answer (`block`: waiting for it); `Disconnected` inline or once the
+    /// thread has ended.
+    fn next_answer(&self, block: bool) -> Result<Answer<S::Output>, TryRecvError> {
+        let Runner::Thread { outputs, .. } = &self.runner else {
+            return Err(TryRecvError::Disconnected);
+        };
+        if block {
+            outputs.recv().map_err(|_| TryRecvError::Disconnected)
+        } else {
+            outputs.try_recv()
+        }
+    }
+
+    /// The thread's answer to a job: it and the jobs before it are no longer pending, its
+    /// outputs are ready, its lock waits recorded.
+    fn take(&mut self, (number, out, waits): Answer<S::Output>) {
+        while self.pending.front().is_some_and(|(n, _)| *n <= number) {
+            self.pending.pop_front();
+        }
+        self.ready.extend(out);
+        self.lock_waits.frame(waits);
     }
 
     fn run_inline(&mut self, job: &S::Job) {
@@ -260,19 +275,13 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
     /// The outputs so far (what inline jobs gave, what the thread sent back).
     pub fn poll(&mut self) -> Vec<S::Output> {
         let mut disconnected = false;
-        if let Runner::Thread { outputs, .. } = &self.runner {
-            loop {
-                match outputs.try_recv() {
-                    Ok((number, out, waits)) => {
-                        answered(&mut self.pending, number);
-                        self.ready.extend(out);
-                        self.lock_waits.frame(waits);
-                    }
-                    Err(TryRecvError::Empty) => break,
-                    Err(TryRecvError::Disconnected) => {
-                        disconnected = true;
-                        break;
-                    }
+        while self.threaded() {
+            match self.next_answer(false) {
+                Ok(answer) => self.take(answer),
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => {
+                    disconnected = true;
+                    break;
                 }
             }
         }
@@ -288,16 +297,9 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
     /// jobs run inline) and returns the outputs so far.
     pub fn wait(&mut self) -> Vec<S::Output> {
         self.send_waiting(true);
-        while !self.pending.is_empty() {
-            let Runner::Thread { outputs, .. } = &self.runner else {
-                break;
-            };
-            match outputs.recv() {
-                Ok((number, out, waits)) => {
-                    answered(&mut self.pending, number);
-                    self.ready.extend(out);
-                    self.lock_waits.frame(waits);
-                }
+        while !self.pending.is_empty() && self.threaded() {
+            match self.next_answer(true) {
+                Ok(answer) => self.take(answer),
                 Err(_) => self.fall_back(false),
             }
         }
@@ -310,16 +312,14 @@ impl<S: Stage<N>, const N: usize> Worker<S, N> {
     pub fn finish(mut self) -> (Vec<S::Output>, S, Vec<String>, LockWaitLog) {
         // The jobs still waiting go to the thread first.
         self.send_waiting(true);
-        if let Runner::Thread { jobs, outputs, .. } = &mut self.runner {
+        if let Runner::Thread { jobs, .. } = &mut self.runner {
             // Dropping our sender ends the thread once the queue is empty (a clone held by
             // another worker's thread is gone once that worker has finished).
             let (closed, _) = sync_channel(1);
             drop(std::mem::replace(jobs, closed));
-            while let Ok((number, out, waits)) = outputs.recv() {
-                answered(&mut self.pending, number);
-                self.ready.extend(out);
-                self.lock_waits.frame(waits);
-            }
+        }
+        while let Ok(answer) = self.next_answer(true) {
+            self.take(answer);
         }
         if self.threaded() {
             self.fall_back(true);
@@ -389,13 +389,6 @@ impl<S: Stage<N>, const N: usize> Drop for Worker<S, N> {
             let (closed, _) = sync_channel(1);
             drop(std::mem::replace(jobs, closed));
         }
-    }
-}
-
-/// Job `number` was answered: it and the jobs before it are no longer pending.
-fn answered<J>(pending: &mut VecDeque<Numbered<J>>, number: u64) {
-    while pending.front().is_some_and(|(n, _)| *n <= number) {
-        pending.pop_front();
     }
 }
 
