@@ -3,6 +3,7 @@
 //! back, and the removal of the measurements its optimum — or the double window's — does not
 //! explain.
 
+use super::window_job::{BaWindow, SolvedBa, WindowAnswer, WindowKind};
 use super::{ExplorationError, LocalWindow, MonoExplorer, SolvedWindow, WindowJob, rigid_pose};
 use crate::factors::point_to_inverse_depth;
 use crate::map::{KeyframeId, PointId, SlamGraph};
@@ -103,28 +104,36 @@ impl MonoExplorer {
         self.drop_measurements(graph, k, outliers)
     }
 
-    /// The keyframe BA of new keyframe `k` (§3.3.3) as a job another thread can solve
-    /// ([`WindowJob::solve`]): the window's keyframes ([`Self::local_keyframes`]; localising,
-    /// only the temporary ones) and what the BA needs of the explorer's configuration.
+    /// The window of new keyframe `k` as a job another thread can solve
+    /// ([`WindowJob::solve`]): the double window, or the keyframe BA (§3.3.3) over the window's
+    /// keyframes ([`Self::local_keyframes`]; localising, only the temporary ones) with what it
+    /// needs of the explorer's configuration.
     pub(super) fn window_job(&self, graph: &SlamGraph<2>, k: KeyframeId) -> WindowJob {
-        let mut local = self.local_keyframes(graph, k);
-        // Localising, only the temporary keyframes and their points move: the loaded map's
-        // keyframes that measure the window's points are held as its fixed observers, and its
-        // points are held (`MonoExplorer::resume`).
-        if self.localise {
-            local.retain(|w| self.temporary.contains(w));
-        }
+        let kind = match self.double_window.clone().filter(|_| !self.localise) {
+            Some(optimiser) => WindowKind::DoubleWindow(optimiser),
+            None => {
+                let mut local = self.local_keyframes(graph, k);
+                // Localising, only the temporary keyframes and their points move: the loaded
+                // map's keyframes that measure the window's points are held as its fixed
+                // observers, and its points are held (`MonoExplorer::resume`).
+                if self.localise {
+                    local.retain(|w| self.temporary.contains(w));
+                }
+                WindowKind::Ba(BaWindow {
+                    local,
+                    temporary: self.localise.then(|| self.temporary.clone()),
+                    sigma: self.config.sigma,
+                    huber: self.config.huber,
+                    fixed_observers: self.config.fixed_observers,
+                    iterations: self.config.ba_iterations,
+                    remove_outliers: self.config.remove_outliers,
+                })
+            }
+        };
         WindowJob {
             keyframe: k,
-            local,
-            temporary: self.localise.then(|| self.temporary.clone()),
             camera: self.camera,
-            sigma: self.config.sigma,
-            huber: self.config.huber,
-            fixed_observers: self.config.fixed_observers,
-            iterations: self.config.ba_iterations,
-            remove_outliers: self.config.remove_outliers,
-            double_window: self.double_window.clone().filter(|_| !self.localise),
+            kind,
         }
     }
 
@@ -141,24 +150,37 @@ impl MonoExplorer {
         solved: SolvedWindow,
     ) -> Result<Option<Se3>, ExplorationError> {
         let k = solved.keyframe;
-        if let Some((optimiser, _)) = solved.double_window {
-            self.double_window = Some(optimiser);
-            // What the optimum does not explain leaves the map, as after the BA.
-            if self.config.remove_outliers {
-                let local = self.local_keyframes(graph, k);
-                self.remove_unexplained(graph, k, &local)?;
-            }
-            // The filters' anchors moved with their keyframes.
-            let anchors: HashSet<usize> =
-                self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
-            for a in anchors {
-                if let Some(&ka) = self.keyframe_of_frame.get(&a) {
-                    let t = rigid_pose(graph, ka);
-                    self.filters.set_anchor_pose(a, t);
+        let solved = match solved.answer {
+            WindowAnswer::Ba(solved) => solved,
+            WindowAnswer::DoubleWindow(optimiser, _) => {
+                self.double_window = Some(optimiser);
+                // What the optimum does not explain leaves the map, as after the BA.
+                if self.config.remove_outliers {
+                    let local = self.local_keyframes(graph, k);
+                    self.remove_unexplained(graph, k, &local)?;
                 }
+                // The filters' anchors moved with their keyframes.
+                let anchors: HashSet<usize> =
+                    self.filters.iter().map(|(_, f)| f.anchor_frame).collect();
+                for a in anchors {
+                    if let Some(&ka) = self.keyframe_of_frame.get(&a) {
+                        let t = rigid_pose(graph, ka);
+                        self.filters.set_anchor_pose(a, t);
+                    }
+                }
+                return Ok(Some(self.frames_moved(graph, k)));
             }
-            return Ok(Some(self.frames_moved(graph, k)));
-        }
+        };
+        self.write_ba(graph, k, solved)
+    }
+
+    /// Writes the keyframe BA's optimum back (see [`Self::apply_window`]).
+    fn write_ba(
+        &mut self,
+        graph: &mut SlamGraph<2>,
+        k: KeyframeId,
+        solved: SolvedBa,
+    ) -> Result<Option<Se3>, ExplorationError> {
         let stale = solved.window.iter().any(|&w| {
             graph
                 .keyframe(w)

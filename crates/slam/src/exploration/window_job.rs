@@ -22,38 +22,67 @@ pub(super) fn solver(iterations: usize) -> SolverOptions {
     }
 }
 
-/// A new keyframe's window as [`MonoExplorer`] decides it: the double window (thesis §6.2,
-/// when the job carries the optimiser: `double_window`), or the keyframe BA (thesis §3.3.3) on
-/// Euclidean points:
-/// the window's keyframes are optimised with the points they measure; up to
-/// `fixed_observers` other keyframes measuring those points join as fixed poses, and with
-/// fewer than two of them the window's two oldest keyframes are fixed (they anchor the window
-/// to the trajectory and fix the scale gauge). Points measured once in all are held fixed, as
-/// are, localising, the loaded map's. Its problem is read from the graph when it is solved
+/// A new keyframe's window as [`MonoExplorer`] decides it: the keyframe BA (thesis §3.3.3) or
+/// the double window (thesis §6.2). Its problem is read from the graph when it is solved
 /// ([`WindowJob::solve`]), in whatever thread solves it.
 #[derive(Clone, Debug)]
 pub struct WindowJob {
     /// The new keyframe.
     pub(super) keyframe: KeyframeId,
+    pub(super) camera: PinholeCamera,
+    pub(super) kind: WindowKind,
+}
+
+/// Which optimisation a [`WindowJob`] is.
+#[derive(Clone, Debug)]
+pub(super) enum WindowKind {
+    /// The keyframe BA.
+    Ba(BaWindow),
+    /// The double window: the explorer's optimiser (it carries its previous window), given back
+    /// with the answer.
+    DoubleWindow(DoubleWindowOptimiser),
+}
+
+/// The keyframe BA on Euclidean points: the window's keyframes are optimised with the points
+/// they measure; up to `fixed_observers` other keyframes measuring those points join as fixed
+/// poses, and with fewer than two of them the window's two oldest keyframes are fixed (they
+/// anchor the window to the trajectory and fix the scale gauge). Points measured once in all
+/// are held fixed, as are, localising, the loaded map's.
+#[derive(Clone, Debug)]
+pub(super) struct BaWindow {
     /// The keyframes optimised, oldest first.
     pub(super) local: Vec<KeyframeId>,
     /// Localising: the temporary keyframes (only they and their points move).
     pub(super) temporary: Option<Vec<KeyframeId>>,
-    pub(super) camera: PinholeCamera,
     pub(super) sigma: f64,
     pub(super) huber: f64,
     pub(super) fixed_observers: usize,
     pub(super) iterations: usize,
     pub(super) remove_outliers: bool,
-    /// The double window instead of the BA: the explorer's optimiser (its previous window),
-    /// given back with the answer.
-    pub(super) double_window: Option<DoubleWindowOptimiser>,
 }
 
 /// A solved [`WindowJob`], for [`MonoExplorer::apply_window`].
 #[derive(Clone, Debug)]
 pub struct SolvedWindow {
     pub(super) keyframe: KeyframeId,
+    pub(super) answer: WindowAnswer,
+    /// How long reading and solving took.
+    pub time: std::time::Duration,
+}
+
+/// What a [`WindowJob`]'s optimisation gives back.
+#[derive(Clone, Debug)]
+pub(super) enum WindowAnswer {
+    /// The keyframe BA's optimum, to be written back.
+    Ba(SolvedBa),
+    /// The double window's optimiser after the optimisation (it wrote the window back itself)
+    /// and its statistics.
+    DoubleWindow(DoubleWindowOptimiser, DwoStats),
+}
+
+/// The keyframe BA's optimum.
+#[derive(Clone, Debug)]
+pub(super) struct SolvedBa {
     /// The graph's version when the problem was read.
     pub(super) version: u64,
     /// The keyframes optimised, oldest first, and their optimised poses.
@@ -65,11 +94,6 @@ pub struct SolvedWindow {
     pub(super) points: Vec<(PointId, Vector3<f64>)>,
     /// The measurements the optimum does not explain (`remove_outliers`).
     pub(super) outliers: Vec<(KeyframeId, PointId)>,
-    /// The double window's optimiser after the optimisation (it wrote the window back
-    /// itself) and its statistics.
-    pub(super) double_window: Option<(DoubleWindowOptimiser, DwoStats)>,
-    /// How long reading and solving took.
-    pub time: std::time::Duration,
 }
 
 impl SolvedWindow {
@@ -80,7 +104,10 @@ impl SolvedWindow {
 
     /// The double window's statistics (`None`: the keyframe BA).
     pub fn double_window_stats(&self) -> Option<DwoStats> {
-        self.double_window.as_ref().map(|(_, s)| s.clone())
+        match &self.answer {
+            WindowAnswer::DoubleWindow(_, stats) => Some(stats.clone()),
+            WindowAnswer::Ba(_) => None,
+        }
     }
 }
 
@@ -96,23 +123,31 @@ impl WindowJob {
     /// ([`DoubleWindowOptimiser::optimise`]).
     pub fn solve(&self, mut graph: impl GraphAccess<2>) -> Result<SolvedWindow, ExplorationError> {
         let started = std::time::Instant::now();
-        if let Some(optimiser) = &self.double_window {
-            let mut optimiser = optimiser.clone();
-            let stats = optimiser
-                .optimise(&mut graph, &self.camera)
-                .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
-            return Ok(SolvedWindow {
-                keyframe: self.keyframe,
-                version: 0,
-                local: Vec::new(),
-                poses: Vec::new(),
-                window: Vec::new(),
-                points: Vec::new(),
-                outliers: Vec::new(),
-                double_window: Some((optimiser, stats)),
-                time: started.elapsed(),
-            });
-        }
+        let answer = match &self.kind {
+            WindowKind::DoubleWindow(optimiser) => {
+                let mut optimiser = optimiser.clone();
+                let stats = optimiser
+                    .optimise(&mut graph, &self.camera)
+                    .map_err(|e| ExplorationError::Optimisation(e.to_string()))?;
+                WindowAnswer::DoubleWindow(optimiser, stats)
+            }
+            WindowKind::Ba(ba) => WindowAnswer::Ba(ba.solve(&self.camera, graph)?),
+        };
+        Ok(SolvedWindow {
+            keyframe: self.keyframe,
+            answer,
+            time: started.elapsed(),
+        })
+    }
+}
+
+impl BaWindow {
+    /// The keyframe BA read under a read lock of `graph` and solved with none.
+    fn solve(
+        &self,
+        camera: &PinholeCamera,
+        mut graph: impl GraphAccess<2>,
+    ) -> Result<SolvedBa, ExplorationError> {
         let (
             WindowProblem {
                 window,
@@ -124,7 +159,7 @@ impl WindowJob {
             version,
         ) = {
             let graph = graph.read();
-            (self.problem(&graph)?, graph.version())
+            (self.problem(camera, &graph)?, graph.version())
         };
         ba.problem
             .optimise(&solver(self.iterations))
@@ -144,7 +179,7 @@ impl WindowJob {
                     continue;
                 }
                 let x = all_poses[o.pose].act(&points[o.point]);
-                let explained = CameraModel::project(&self.camera, &x)
+                let explained = CameraModel::project(camera, &x)
                     .is_ok_and(|z| (z - o.measurement).norm_squared() <= gate);
                 if !explained {
                     outliers.push((window[o.pose], p));
@@ -152,8 +187,7 @@ impl WindowJob {
             }
         }
         let n = self.local.len();
-        Ok(SolvedWindow {
-            keyframe: self.keyframe,
+        Ok(SolvedBa {
             version,
             local: self.local.clone(),
             poses: all_poses[..n].to_vec(),
@@ -165,13 +199,11 @@ impl WindowJob {
                 .map(|(&p, y)| (p, y))
                 .collect(),
             outliers,
-            double_window: None,
-            time: started.elapsed(),
         })
     }
 }
 
-/// The keyframe BA's problem as [`WindowJob::problem`] reads it from the graph.
+/// The keyframe BA's problem as [`BaWindow::problem`] reads it from the graph.
 struct WindowProblem {
     /// The window's keyframes, then the fixed observers: the BA's poses.
     window: Vec<KeyframeId>,
@@ -185,9 +217,13 @@ struct WindowProblem {
     ba: BundleAdjustment,
 }
 
-impl WindowJob {
-    /// Builds the job's BA from `graph` (see [`WindowJob`]).
-    fn problem(&self, graph: &SlamGraph<2>) -> Result<WindowProblem, ExplorationError> {
+impl BaWindow {
+    /// Builds the BA from `graph` (see [`BaWindow`]).
+    fn problem(
+        &self,
+        camera: &PinholeCamera,
+        graph: &SlamGraph<2>,
+    ) -> Result<WindowProblem, ExplorationError> {
         let local = &self.local;
         let mut count: BTreeMap<PointId, usize> = BTreeMap::new();
         for &w in local {
@@ -271,7 +307,7 @@ impl WindowJob {
             })
             .collect();
         let mut ba = BundleAdjustment::new(
-            &self.camera,
+            camera,
             &poses,
             &points,
             &observations,
