@@ -60,6 +60,7 @@ impl SystemConfig {
             },
             max_features: m.max_features,
             feature_spacing: m.feature_spacing,
+            seed: m.seed,
             image_width: width as f64,
             image_height: height as f64,
             bootstrap_depth_error: m.bootstrap_depth_error,
