@@ -89,9 +89,7 @@ impl Sim3 {
         }
         sum
     }
-}
 
-impl Sim3 {
     /// `J_l(x)⁻¹ = ad_x·(e^{ad_x} − I)⁻¹ = Σ_k B_k/k!·ad_x^k` (the Bernoulli numbers, `B₁ = −½`,
     /// the odd ones beyond it zero; thesis eq. 5.22 is its first three terms), summed until its
     /// terms no longer change the sum; `None` for `|z| > 1`. The series converges for

@@ -183,10 +183,11 @@ pub struct MonoConfig {
     /// iterations from `optimiser`, covisibility edges by local registration with
     /// `mapping.theta`) instead of the exploration's sliding window of `window` keyframes.
     /// Off. Over three feature `seed`s it ends the run more accurate than the keyframe BA on
-    /// seven of nine sequences by the median (KITTI 04 0.89 against 1.45 m, 7-Scenes 3.9
+    /// eight of nine sequences by the median (KITTI 04 0.89 against 1.45 m, 7-Scenes 3.9
     /// against 4.5 cm, the room 0.37 against 0.73 cm, the towns' second and third seeds 0.49
-    /// and 0.57 against 1.14 and 1.63 m), but live it is worse on KITTI 06 (5.8 against 4.3
-    /// cm), 7-Scenes (5.3 against 4.8 cm) and the town (one seed 19 m before its loops), and
+    /// and 0.57 against 1.14 and 1.63 m; not the first town, 0.87 against 0.77 m), but live
+    /// it is worse on KITTI 06 (5.8 against 4.3 cm), 7-Scenes (5.3 against 4.8 cm) and the
+    /// town (one draw 19 m before its loops, a scale jump at a turn), and
     /// the tracking thread waits for its 40–90 ms per keyframe before the next frame reads the
     /// map (bench/README.md, "Monocular defaults over five seeds"; the single runs of seed 0:
     /// twenty-fourth session).
