@@ -6,6 +6,7 @@ use crate::config::KeyframeConfig;
 use crate::frame::FrameData;
 use data::sequence::RgbPlanes;
 use lie::{LieGroup, Sim3};
+use slam::exploration::ExplorationKeyframe;
 use slam::map::{KeyframeId, SlamGraph};
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -113,11 +114,26 @@ pub enum KeyframeReason {
     Parallax(f64),
     /// The camera rotated this many degrees away from every keyframe of `N1`.
     Rotation(f64),
-    /// Only this fraction of the candidate points was found.
+    /// Only this fraction of the candidate points was found (monocular: of the map points the
+    /// last keyframe measures).
     FewFound(f64),
-    /// The monocular exploration's criterion (`slam::exploration`: the camera moved a fraction
-    /// of the scene depth from the last keyframe, or few map points were tracked).
-    Exploration,
+    /// Monocular: only this many map points were tracked (`slam::exploration`'s
+    /// `min_tracked_for_keyframe`).
+    FewTracked(usize),
+}
+
+impl KeyframeReason {
+    /// The reason of the monocular exploration's keyframe, `keyframe_distance` the unit of its
+    /// baseline: a baseline is reported as a parallax (the distance over the scene depth, or
+    /// the tracked points' median parallax in radians, as the baseline is measured).
+    pub fn of_exploration(reason: ExplorationKeyframe, keyframe_distance: f64) -> Self {
+        match reason {
+            ExplorationKeyframe::Baseline(b) => KeyframeReason::Parallax(b * keyframe_distance),
+            ExplorationKeyframe::Rotation(r) => KeyframeReason::Rotation(r.to_degrees()),
+            ExplorationKeyframe::Thinning(f) => KeyframeReason::FewFound(f),
+            ExplorationKeyframe::FewTracked(n) => KeyframeReason::FewTracked(n),
+        }
+    }
 }
 
 impl KeyframeReason {
@@ -129,7 +145,7 @@ impl KeyframeReason {
             KeyframeReason::Parallax(_) => "parallax",
             KeyframeReason::Rotation(_) => "rotation",
             KeyframeReason::FewFound(_) => "few found",
-            KeyframeReason::Exploration => "exploration",
+            KeyframeReason::FewTracked(_) => "few tracked",
         }
     }
 }

@@ -136,6 +136,26 @@ fn kitti_left_camera_is_tracked_at_orb_slam3_accuracy() {
         k[0].frame_index, k[1].frame_index
     );
     assert!(rotation < 0.5 && direction < 2.0);
+    // Every keyframe after the bootstrap's says which criterion made it; a car driving
+    // straight makes them by its baseline (the distance over the scene depth, beyond 5 %).
+    let reasons: Vec<_> = s
+        .result
+        .frames
+        .iter()
+        .filter_map(|f| f.keyframe.as_ref().map(|(_, r)| r.clone()))
+        .collect();
+    assert_eq!(reasons[0], system::KeyframeReason::First, "{reasons:?}");
+    assert!(
+        reasons[1..]
+            .iter()
+            .all(|r| !matches!(r, system::KeyframeReason::First)),
+        "{reasons:?}"
+    );
+    let by_baseline = reasons[1..]
+        .iter()
+        .filter(|r| matches!(r, system::KeyframeReason::Parallax(p) if *p > 0.05))
+        .count();
+    assert!(by_baseline * 10 >= 9 * (reasons.len() - 1), "{reasons:?}");
 }
 
 #[test]

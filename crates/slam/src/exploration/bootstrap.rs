@@ -151,6 +151,7 @@ impl MonoExplorer {
         Ok(FrameOutcome {
             camera_from_world: Some(second),
             keyframe: Some(k1),
+            keyframe_reason: None,
             tracked: self.active.len(),
             promoted: 0,
             started,

@@ -181,6 +181,24 @@ pub enum KeyframeBaseline {
     Parallax,
 }
 
+/// Why [`MonoExplorer`] made a frame a keyframe: why the last keyframe (and every other
+/// keyframe near the view, with `keyframe_rotation`) does not cover it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ExplorationKeyframe {
+    /// The baseline to the last keyframe, in units of `keyframe_distance` (> 1): the
+    /// distance over the scene depth or the tracked points' median parallax
+    /// ([`KeyframeBaseline`]).
+    Baseline(f64),
+    /// The camera turned this many radians from the last keyframe's viewing direction
+    /// (more than `keyframe_rotation`).
+    Rotation(f64),
+    /// The frame tracks this fraction of the map points the last keyframe measures (less than
+    /// `keyframe_min_tracked_fraction`): the map thins out.
+    Thinning(f64),
+    /// Fewer map points than `min_tracked_for_keyframe` tracked: this many.
+    FewTracked(usize),
+}
+
 /// Which keyframes the keyframe BA of [`MonoExplorer`] optimises.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LocalWindow {
@@ -309,6 +327,8 @@ pub struct FrameOutcome {
     pub camera_from_world: Option<Se3>,
     /// The keyframe if the frame became one.
     pub keyframe: Option<KeyframeId>,
+    /// Why the frame became a keyframe (`None` for the bootstrap's keyframes).
+    pub keyframe_reason: Option<ExplorationKeyframe>,
     /// Map points tracked.
     pub tracked: usize,
     /// Features promoted to the map in this frame.
@@ -608,6 +628,7 @@ impl MonoExplorer {
                 Ok(FrameOutcome {
                     camera_from_world: None,
                     keyframe: None,
+                    keyframe_reason: None,
                     tracked: 0,
                     promoted: 0,
                     started: 0,
@@ -655,6 +676,7 @@ impl MonoExplorer {
                         Ok(FrameOutcome {
                             camera_from_world: None,
                             keyframe: None,
+                            keyframe_reason: None,
                             tracked: 0,
                             promoted: 0,
                             started: 0,
@@ -774,10 +796,13 @@ impl MonoExplorer {
             .collect();
         let median_depth = median(&mut depths).unwrap_or(1.0);
         let last_kf = KeyframeId::from_index(self.map.keyframes.len() - 1);
-        let is_keyframe =
-            self.view_uncovered(graph, &pose, last_kf, &tracked, &world, median_depth)
-                || tracked.len() < self.config.min_tracked_for_keyframe;
-        let keyframe = is_keyframe.then(|| {
+        let keyframe_reason = self
+            .view_uncovered(graph, &pose, last_kf, &tracked, &world, median_depth)
+            .or_else(|| {
+                (tracked.len() < self.config.min_tracked_for_keyframe)
+                    .then_some(ExplorationKeyframe::FewTracked(tracked.len()))
+            });
+        let keyframe = keyframe_reason.is_some().then(|| {
             let k = self.map.add_keyframe(graph, frame, pose, measurements);
             self.keyframe_of_frame.insert(frame, k);
             if self.localise {
@@ -827,6 +852,7 @@ impl MonoExplorer {
         Ok(FrameOutcome {
             camera_from_world: Some(pose),
             keyframe,
+            keyframe_reason,
             tracked: tracked.len(),
             promoted,
             started,
@@ -838,14 +864,16 @@ impl MonoExplorer {
         })
     }
 
-    /// Whether no keyframe covers the view of a camera at `pose` looking at a scene
-    /// `median_depth` away (thesis §3.3.3). Without `keyframe_rotation`: the camera moved more
-    /// than `keyframe_distance` of the scene depth from the last keyframe. With it, a keyframe
-    /// covers the view when the camera is within `keyframe_distance` of the scene depth of it
-    /// *and* within `keyframe_rotation` of its viewing direction, and the keyframes tried are
-    /// the last one and those measuring the `tracked` points: a camera turning on the spot
-    /// gets keyframes (their filters start the points of what comes into view), one browsing
-    /// a mapped place gets none where its old keyframes look.
+    /// Why no keyframe covers the view of a camera at `pose` looking at a scene
+    /// `median_depth` away (thesis §3.3.3), `None` if one does. Without `keyframe_rotation`:
+    /// the camera moved more than `keyframe_distance` of the scene depth from the last
+    /// keyframe. With it, a keyframe covers the view when the camera is within
+    /// `keyframe_distance` of the scene depth of it *and* within `keyframe_rotation` of its
+    /// viewing direction, and the keyframes tried are the last one and those measuring the
+    /// `tracked` points: a camera turning on the spot gets keyframes (their filters start the
+    /// points of what comes into view), one browsing a mapped place gets none where its old
+    /// keyframes look. The reason given is the last keyframe's (every keyframe tried fails to
+    /// cover the view, the last one among them).
     fn view_uncovered(
         &self,
         graph: &SlamGraph<2>,
@@ -854,7 +882,7 @@ impl MonoExplorer {
         tracked: &[(PointId, Vector2<f64>)],
         world: &[Vector3<f64>],
         median_depth: f64,
-    ) -> bool {
+    ) -> Option<ExplorationKeyframe> {
         let depth = median_depth.max(1e-9);
         let here = centre(pose);
         // The baseline to keyframe `k` in units of `keyframe_distance`.
@@ -872,7 +900,8 @@ impl MonoExplorer {
             baseline / self.config.keyframe_distance
         };
         let Some(rotation) = self.config.keyframe_rotation else {
-            return distance(last) > 1.0;
+            let d = distance(last);
+            return (d > 1.0).then_some(ExplorationKeyframe::Baseline(d));
         };
         let mut near: HashSet<KeyframeId> = HashSet::from([last]);
         for (p, _) in tracked {
@@ -884,19 +913,31 @@ impl MonoExplorer {
         // `keyframe_min_tracked_fraction` of the points it does: where the map thins out (its
         // points leave the view, the tracks die) new points are needed although the place is
         // known.
-        let wanted = |k: KeyframeId| {
-            graph.keyframe(k).map_or(0, |kf| kf.observations().len()) as f64
-                * self.config.keyframe_min_tracked_fraction
-        };
-        near.into_iter().all(|k| {
+        let measured = |k: KeyframeId| graph.keyframe(k).map_or(0, |kf| kf.observations().len());
+        let mut uncovered_by = |k: KeyframeId| {
             let turned = pose
                 .rotation()
                 .compose(&rigid_pose(graph, k).rotation().inverse())
                 .log()
                 .norm();
+            if turned > rotation {
+                return Some(ExplorationKeyframe::Rotation(turned));
+            }
+            let measured = measured(k) as f64;
+            if (tracked.len() as f64) < measured * self.config.keyframe_min_tracked_fraction {
+                return Some(ExplorationKeyframe::Thinning(
+                    tracked.len() as f64 / measured,
+                ));
+            }
             // The baseline last: with parallax it is the costly test.
-            turned > rotation || (tracked.len() as f64) < wanted(k) || distance(k) > 1.0
-        })
+            let d = distance(k);
+            (d > 1.0).then_some(ExplorationKeyframe::Baseline(d))
+        };
+        near.remove(&last);
+        let reason = uncovered_by(last)?;
+        near.into_iter()
+            .all(|k| uncovered_by(k).is_some())
+            .then_some(reason)
     }
 
     fn motion_only(

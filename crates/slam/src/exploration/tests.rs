@@ -331,10 +331,34 @@ fn keyframes_by_parallax_are_sparser_only_for_forward_motion() {
             },
         );
         let mut graph = SlamGraph::new();
+        let mut reasons = Vec::new();
         for (f, m) in frames.iter().enumerate() {
-            explorer
+            let o = explorer
                 .process(&mut graph, f, m)
                 .unwrap_or_else(|e| panic!("frame {f}: {e}"));
+            assert!(
+                o.keyframe.is_some() || o.keyframe_reason.is_none(),
+                "frame {f}"
+            );
+            if o.keyframe.is_some() {
+                reasons.push(o.keyframe_reason);
+            }
+        }
+        // Every keyframe after the bootstrap's says why it was made, and the reason is the
+        // criterion's: a baseline beyond its threshold, a map thinned below its fraction.
+        let bootstrap = reasons.iter().take_while(|r| r.is_none()).count();
+        assert_eq!(bootstrap, 1, "{reasons:?}");
+        for r in &reasons[bootstrap..] {
+            match r.expect("a keyframe after the bootstrap has a reason") {
+                ExplorationKeyframe::Baseline(b) => assert!(b > 1.0, "{r:?}"),
+                ExplorationKeyframe::Thinning(f) => assert!(
+                    f < ExplorationConfig::default().keyframe_min_tracked_fraction,
+                    "{r:?}"
+                ),
+                ExplorationKeyframe::Rotation(_) | ExplorationKeyframe::FewTracked(_) => {
+                    panic!("no turn, points enough: {r:?}")
+                }
+            }
         }
         // Sim(3)-aligned centre error over the path.
         let poses = explorer.frame_poses(&graph);

@@ -417,10 +417,10 @@ impl MonoSensor {
             }
             Some(_) => StepState::Good,
         };
-        let reason = if first {
-            KeyframeReason::First
-        } else {
-            KeyframeReason::Exploration
+        // The bootstrap's two keyframes have no reason of the exploration's.
+        let reason = match o.keyframe_reason.filter(|_| !first) {
+            Some(r) => KeyframeReason::of_exploration(r, ctx.config.mono.keyframe_distance),
+            None => KeyframeReason::First,
         };
         Step {
             state,
