@@ -59,6 +59,8 @@ print(f"{tag:8s} {label:8s} keyframes {s['keyframes']:4d} loops {len(s['loops'])
       f"ATE live {e['live']['ate_rmse_m'] * 100:8.2f} after {e['final']['ate_rmse_m'] * 100:8.2f} cm "
       f"drift {e['final']['drift_translation_percent'] or 0:5.2f} % median {statistics.median(ms):5.1f} "
       f"mean {statistics.mean(ms):5.1f} ms tracking median {statistics.median(tracking):5.1f} ms tracked {s['frames_with_pose']}/{s['frames']}")
+# Which criterion made the keyframes (the summary's `keyframe_reasons`).
+print(f"{'':8s} {'':8s} keyframes by " + ", ".join(f"{n} {r}" for r, n in sorted(s.get("keyframe_reasons", {}).items())))
 PY
   done
   [ ${#runs[@]} -gt 1 ] || continue
