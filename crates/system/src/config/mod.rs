@@ -127,6 +127,13 @@ pub struct MonoConfig {
     /// The bootstrap waits for the parallax at which a typical point's relative depth error
     /// is at most this (0.1: `θ ≥ √2·σ/(f·ε)`, 1.5° at f = 525 px, σ = 1 px).
     pub bootstrap_depth_error: f64,
+    /// A feature's filter becomes a map point once its inverse depth is known to this relative
+    /// standard deviation (`slam::exploration::feature_init`, `σ_q ≤ κ·q`; 0.1, the bootstrap's
+    /// depth error: a point enters the window BA known as well as the map's first points).
+    /// 0.05 was tried over three seeds (bench/README.md, twenty-eighth session; medians,
+    /// Sim(3) ATE live / after): better live on the first town (172 / 79 against 305 / 77 cm),
+    /// worse on KITTI 04 (174 against 144 cm) and the third town (366 / 181 against 248 / 163).
+    pub feature_depth_error: f64,
     /// The bootstrap measures the tracks' noise on its two frames (the inliers' epipolar or
     /// homography residuals) and asks for the parallax that noise needs, not `pixel_noise`'s:
     /// the estimate is taken no lower than this many pixels (0.25: a corner followed by
@@ -300,6 +307,7 @@ impl Default for MonoConfig {
             keyframe_distance: 0.05,
             keyframe_parallax: false,
             bootstrap_depth_error: 0.1,
+            feature_depth_error: 0.1,
             bootstrap_min_sigma: 0.25,
             max_bootstrap_frames: 30,
             max_refused: 10,
@@ -884,12 +892,13 @@ impl MonoConfig {
         }
         if !(m.keyframe_distance > 0.0
             && m.bootstrap_depth_error > 0.0
+            && m.feature_depth_error > 0.0
             && m.bootstrap_min_sigma > 0.0
             && m.track_spacing >= 0.0
             && m.feature_spacing >= 0.0
             && m.max_forward_backward > 0.0)
         {
-            return Err("mono.keyframe_distance, bootstrap_depth_error, bootstrap_min_sigma and max_forward_backward must be positive, the spacings non-negative".into());
+            return Err("mono.keyframe_distance, bootstrap_depth_error, feature_depth_error, bootstrap_min_sigma and max_forward_backward must be positive, the spacings non-negative".into());
         }
         if m.max_bootstrap_frames == 0 || m.max_refused == 0 || m.loop_consistency == 0 {
             return Err(
@@ -1060,7 +1069,7 @@ mod tests {
     }
 
     #[test]
-    fn the_monocular_seed_reaches_the_exploration() {
+    fn the_monocular_seed_and_promotion_threshold_reach_the_exploration() {
         let exploration = |yaml: &str| {
             SystemConfig::from_yaml(yaml)
                 .unwrap()
@@ -1069,5 +1078,15 @@ mod tests {
         assert_eq!(exploration("").seed, 0);
         assert_eq!(exploration("mono:\n  seed: 7\n").seed, 7);
         assert!(SystemConfig::from_yaml("mono:\n  seed: -1\n").is_err());
+        // The promotion threshold of the features' filters.
+        let kappa = |e: ::slam::exploration::ExplorationConfig| {
+            e.feature_init.max_relative_inverse_depth_std
+        };
+        assert_eq!(kappa(exploration("")), 0.1);
+        assert_eq!(
+            kappa(exploration("mono:\n  feature_depth_error: 0.05\n")),
+            0.05
+        );
+        assert!(SystemConfig::from_yaml("mono:\n  feature_depth_error: 0\n").is_err());
     }
 }

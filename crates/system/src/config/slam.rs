@@ -82,6 +82,7 @@ impl SystemConfig {
             keyframe_min_tracked_fraction: self.keyframes.min_found_fraction,
             ..ExplorationConfig::default()
         };
+        config.feature_init.max_relative_inverse_depth_std = m.feature_depth_error;
         // The monocular double window measures what the keyframe BA does — corner tracks and
         // template matches, a few of them off their points — so with the BA's Huber kernel
         // (the stereo double window has none: its points' depths are checked measurements, and
