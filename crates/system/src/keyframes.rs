@@ -134,9 +134,7 @@ impl KeyframeReason {
             ExplorationKeyframe::FewTracked(n) => KeyframeReason::FewTracked(n),
         }
     }
-}
 
-impl KeyframeReason {
     /// A short name.
     pub fn name(&self) -> &'static str {
         match self {

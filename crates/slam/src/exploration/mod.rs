@@ -913,7 +913,6 @@ impl MonoExplorer {
         // `keyframe_min_tracked_fraction` of the points it does: where the map thins out (its
         // points leave the view, the tracks die) new points are needed although the place is
         // known.
-        let measured = |k: KeyframeId| graph.keyframe(k).map_or(0, |kf| kf.observations().len());
         let mut uncovered_by = |k: KeyframeId| {
             let turned = pose
                 .rotation()
@@ -923,7 +922,7 @@ impl MonoExplorer {
             if turned > rotation {
                 return Some(ExplorationKeyframe::Rotation(turned));
             }
-            let measured = measured(k) as f64;
+            let measured = graph.keyframe(k).map_or(0, |kf| kf.observations().len()) as f64;
             if (tracked.len() as f64) < measured * self.config.keyframe_min_tracked_fraction {
                 return Some(ExplorationKeyframe::Thinning(
                     tracked.len() as f64 / measured,
