@@ -19,6 +19,16 @@
 //!                                           live tracker; prints cur_from_ref as a 4×4 matrix,
 //!                                           the time of prepare + align, of each alone, and
 //!                                           with both pyramids built)
+//!   vision_bench lkroad IMGS STEP F CX HORIZON HEIGHT RADIUS
+//!                                           (LK's error on a road: each image of the
+//!                                           comma-separated IMGS warped by the homography of a
+//!                                           flat road HEIGHT metres below a camera of focal F,
+//!                                           principal column CX and horizon row HORIZON that
+//!                                           moves STEP metres forward; the FAST corners below
+//!                                           the horizon tracked as the monocular front-end
+//!                                           does (forward-backward, 4 levels, window radius
+//!                                           RADIUS); prints the error along and across each
+//!                                           corner's true flow, by flow length)
 
 use std::time::Instant;
 use vision::fast::fast9_pyramid;
@@ -427,6 +437,101 @@ fn main() {
                                    "cur_from_ref": rows, "iterations": r.iterations,
                                    "residuals": r.num_residuals, "cost": r.final_cost,
                                    "same_as_scalar": same_as_scalar})
+            );
+        }
+        "lkroad" => {
+            let step: f32 = arg(3).parse().expect("step");
+            let (f, cx, horizon, height): (f32, f32, f32, f32) = (
+                arg(4).parse().expect("focal"),
+                arg(5).parse().expect("cx"),
+                arg(6).parse().expect("horizon row"),
+                arg(7).parse().expect("camera height"),
+            );
+            let radius: usize = arg(8).parse().expect("window radius");
+            // The road point seen at row offset y = v − horizon lies at depth Z = f·h/y; after a
+            // step b forward it is seen at (c + (x − c)·k, horizon + y·k), k = Z/(Z − b)
+            // = 1/(1 − b·y/(f·h)). The warp samples the source at the inverse map.
+            let fh = f * height;
+            let forward = |u: f32, v: f32| {
+                let k = 1.0 / (1.0 - step * (v - horizon) / fh);
+                (cx + (u - cx) * k, horizon + (v - horizon) * k)
+            };
+            let backward = |u: f32, v: f32| {
+                let y2 = v - horizon;
+                if y2 <= 0.0 {
+                    return (u, v);
+                }
+                let y = y2 / (1.0 + step * y2 / fh);
+                (cx + (u - cx) * (1.0 - step * y / fh), horizon + y)
+            };
+            // Bins of 5 px of true flow: (along, across) errors of the tracked position.
+            let mut bins: Vec<Vec<(f32, f32)>> = vec![Vec::new(); 7];
+            for path in arg(2).split(',') {
+                let img = load_gray_u8(path).expect("image");
+                let (w, h) = (img.width() as f32, img.height() as f32);
+                let warped =
+                    vision::image::GrayImage::from_fn(img.width(), img.height(), |u, v| {
+                        let (x, y) = backward(u as f32, v as f32);
+                        let x = x.clamp(0.0, w - 1.0);
+                        let y = y.clamp(0.0, h - 1.0);
+                        vision::interp::bilinear(&img, x, y)
+                            .unwrap_or(0.0)
+                            .round()
+                            .clamp(0.0, 255.0) as u8
+                    });
+                let corners: Vec<[f32; 2]> = vision::fast::fast9(&img, 20, true)
+                    .iter()
+                    .filter(|c| c.v > horizon + 30.0 && c.v < h - 40.0)
+                    .filter(|c| c.u > 40.0 && c.u < w - 40.0)
+                    .map(|c| [c.u, c.v])
+                    .collect();
+                let p0 = Pyramid::new(&img, 4, 16).expect("pyramid");
+                let p1 = Pyramid::new(&warped, 4, 16).expect("pyramid");
+                let params = vision::lk::LkParams {
+                    levels: 4,
+                    window_radius: radius,
+                    ..Default::default()
+                };
+                let tracked = vision::lk::track_forward_backward(&p0, &p1, &corners, &params, 1.0);
+                for (p, q) in corners.iter().zip(&tracked) {
+                    let (tu, tv) = forward(p[0], p[1]);
+                    let Some(q) = q else { continue };
+                    if tu < 0.0 || tu > w - 1.0 || tv > h - 1.0 {
+                        continue;
+                    }
+                    let d = [tu - p[0], tv - p[1]];
+                    let n = d[0].hypot(d[1]);
+                    let e = [q[0] - tu, q[1] - tv];
+                    let along = (e[0] * d[0] + e[1] * d[1]) / n;
+                    let across = (e[1] * d[0] - e[0] * d[1]) / n;
+                    bins[((n / 5.0) as usize).min(6)].push((along, across));
+                }
+            }
+            let median = |mut x: Vec<f32>| {
+                x.sort_by(f32::total_cmp);
+                x.get(x.len() / 2).copied().unwrap_or(f32::NAN)
+            };
+            let rows: Vec<serde_json::Value> = bins
+                .into_iter()
+                .enumerate()
+                .filter(|(_, b)| !b.is_empty())
+                .map(|(i, b)| {
+                    // Within 2 px: the mean of the tracks that followed their point; the
+                    // median of all.
+                    let near: Vec<f32> = b.iter().map(|e| e.0).filter(|e| e.abs() < 2.0).collect();
+                    serde_json::json!({
+                        "flow_px": [5 * i, if i == 6 { None } else { Some(5 * i + 5) }],
+                        "tracks": b.len(),
+                        "within_2px": near.len(),
+                        "along_median": median(b.iter().map(|e| e.0).collect()),
+                        "along_mean_within_2px": near.iter().sum::<f32>() / near.len().max(1) as f32,
+                        "across_median": median(b.iter().map(|e| e.1).collect()),
+                    })
+                })
+                .collect();
+            println!(
+                "{}",
+                serde_json::json!({"window_radius": radius, "bins": rows})
             );
         }
         other => panic!("unknown command {other}"),
