@@ -19,7 +19,7 @@
 //!                                           live tracker; prints cur_from_ref as a 4×4 matrix,
 //!                                           the time of prepare + align, of each alone, and
 //!                                           with both pyramids built)
-//!   vision_bench lkroad IMGS STEP F CX HORIZON HEIGHT RADIUS
+//!   vision_bench lkroad IMGS STEP F CX HORIZON HEIGHT RADIUS [AFFINE_LEVELS]
 //!                                           (LK's error on a road: each image of the
 //!                                           comma-separated IMGS warped by the homography of a
 //!                                           flat road HEIGHT metres below a camera of focal F,
@@ -27,8 +27,16 @@
 //!                                           moves STEP metres forward; the FAST corners below
 //!                                           the horizon tracked as the monocular front-end
 //!                                           does (forward-backward, 4 levels, window radius
-//!                                           RADIUS); prints the error along and across each
-//!                                           corner's true flow, by flow length)
+//!                                           RADIUS, the finest AFFINE_LEVELS affine, 0 unless
+//!                                           given); prints the corners, the tracks kept and
+//!                                           their error along and across each corner's true
+//!                                           flow, by flow length)
+//!   vision_bench lksurv PAIRS CX RADIUS AFFINE_LEVELS
+//!                                           (the share of FAST corners that the monocular
+//!                                           front-end's forward-backward LK keeps between the
+//!                                           images of each pair of the comma-separated
+//!                                           `A:B` PAIRS, at the centre (within 300 px of
+//!                                           column CX) and at the sides)
 
 use std::time::Instant;
 use vision::fast::fast9_pyramid;
@@ -448,6 +456,9 @@ fn main() {
                 arg(7).parse().expect("camera height"),
             );
             let radius: usize = arg(8).parse().expect("window radius");
+            let affine_levels: usize = std::env::args()
+                .nth(9)
+                .map_or(0, |a| a.parse().expect("affine levels"));
             // The road point seen at row offset y = v − horizon lies at depth Z = f·h/y; after a
             // step b forward it is seen at (c + (x − c)·k, horizon + y·k), k = Z/(Z − b)
             // = 1/(1 − b·y/(f·h)). The warp samples the source at the inverse map.
@@ -466,6 +477,7 @@ fn main() {
             };
             // Bins of 5 px of true flow: (along, across) errors of the tracked position.
             let mut bins: Vec<Vec<(f32, f32)>> = vec![Vec::new(); 7];
+            let mut corners_in = [0usize; 7];
             for path in arg(2).split(',') {
                 let img = load_gray_u8(path).expect("image");
                 let (w, h) = (img.width() as f32, img.height() as f32);
@@ -490,17 +502,19 @@ fn main() {
                 let params = vision::lk::LkParams {
                     levels: 4,
                     window_radius: radius,
+                    affine_levels,
                     ..Default::default()
                 };
                 let tracked = vision::lk::track_forward_backward(&p0, &p1, &corners, &params, 1.0);
                 for (p, q) in corners.iter().zip(&tracked) {
                     let (tu, tv) = forward(p[0], p[1]);
-                    let Some(q) = q else { continue };
                     if tu < 0.0 || tu > w - 1.0 || tv > h - 1.0 {
                         continue;
                     }
                     let d = [tu - p[0], tv - p[1]];
                     let n = d[0].hypot(d[1]);
+                    corners_in[((n / 5.0) as usize).min(6)] += 1;
+                    let Some(q) = q else { continue };
                     let e = [q[0] - tu, q[1] - tv];
                     let along = (e[0] * d[0] + e[1] * d[1]) / n;
                     let across = (e[1] * d[0] - e[0] * d[1]) / n;
@@ -521,6 +535,7 @@ fn main() {
                     let near: Vec<f32> = b.iter().map(|e| e.0).filter(|e| e.abs() < 2.0).collect();
                     serde_json::json!({
                         "flow_px": [5 * i, if i == 6 { None } else { Some(5 * i + 5) }],
+                        "corners": corners_in[i],
                         "tracks": b.len(),
                         "within_2px": near.len(),
                         "along_median": median(b.iter().map(|e| e.0).collect()),
@@ -531,7 +546,50 @@ fn main() {
                 .collect();
             println!(
                 "{}",
-                serde_json::json!({"window_radius": radius, "bins": rows})
+                serde_json::json!({"window_radius": radius, "affine_levels": affine_levels, "bins": rows})
+            );
+        }
+        "lksurv" => {
+            let cx: f32 = arg(3).parse().expect("principal column");
+            let radius: usize = arg(4).parse().expect("window radius");
+            let affine_levels: usize = arg(5).parse().expect("affine levels");
+            let params = vision::lk::LkParams {
+                levels: 4,
+                window_radius: radius,
+                affine_levels,
+                ..Default::default()
+            };
+            // [centre, sides]: corners, kept.
+            let (mut corners, mut kept) = ([0usize; 2], [0usize; 2]);
+            let t0 = Instant::now();
+            for pair in arg(2).split(',') {
+                let (a, b) = pair.split_once(':').expect("PAIRS of A:B");
+                let (ia, ib) = (
+                    load_gray_u8(a).expect("image"),
+                    load_gray_u8(b).expect("image"),
+                );
+                let pa = Pyramid::new(&ia, 4, 16).expect("pyramid");
+                let pb = Pyramid::new(&ib, 4, 16).expect("pyramid");
+                let pts: Vec<[f32; 2]> = vision::fast::fast9(&ia, 20, true)
+                    .iter()
+                    .map(|c| [c.u, c.v])
+                    .collect();
+                let out = vision::lk::track_forward_backward(&pa, &pb, &pts, &params, 1.0);
+                for (p, q) in pts.iter().zip(&out) {
+                    let side = usize::from((p[0] - cx).abs() > 300.0);
+                    corners[side] += 1;
+                    kept[side] += usize::from(q.is_some());
+                }
+            }
+            println!(
+                "{}",
+                serde_json::json!({
+                    "window_radius": radius,
+                    "affine_levels": affine_levels,
+                    "centre": {"corners": corners[0], "kept": kept[0] as f64 / corners[0].max(1) as f64},
+                    "sides": {"corners": corners[1], "kept": kept[1] as f64 / corners[1].max(1) as f64},
+                    "seconds": t0.elapsed().as_secs_f64(),
+                })
             );
         }
         other => panic!("unknown command {other}"),

@@ -6,6 +6,15 @@
 //! `Σ_x [I(W(x; g)) − T(W(x; Δ))]²` over `Δ` and updates `g ← g − Δ`, with
 //! `Δ = H⁻¹ Σ_x ∇Tᵀ (I(x + g) − T(x))`, `H = Σ_x ∇Tᵀ∇T` computed once per level.
 //! Coarse-to-fine: the displacement found on level `l + 1` (doubled) initialises level `l`.
+//!
+//! On the finest [`LkParams::affine_levels`] levels the warp is affine,
+//! `W(x; c, A) = c + A·(x − p)`, solved inverse compositionally as well (Baker & Matthews 2004,
+//! §3.2: the 6×6 Hessian of the template's steepest-descent images once per level, the update
+//! composed as `W ← W ∘ W(Δ)⁻¹`). A patch that grows or shears between the frames — the road and
+//! the sides of a forward drive — drags a translation-only window towards the patch's texture
+//! centre, a lag that grows with the flow (`vision_bench lkroad`); the affine warp follows the
+//! deformation instead. The forward-backward check of an affine track starts its backward pass
+//! at the inverse warp, so a correct track returns to its start whatever the patch's deformation.
 
 use crate::image::Image;
 use crate::pyramid::Pyramid;
@@ -25,6 +34,9 @@ pub struct LkParams {
     pub min_eigenvalue: f32,
     /// Number of pyramid levels used (≤ the pyramids' depth).
     pub levels: usize,
+    /// The finest levels solved with an affine warp instead of a translation (0: translation
+    /// on every level, OpenCV's tracker).
+    pub affine_levels: usize,
 }
 
 impl Default for LkParams {
@@ -37,6 +49,7 @@ impl Default for LkParams {
             epsilon: 0.01,
             min_eigenvalue: 1e-4,
             levels: 4,
+            affine_levels: 0,
         }
     }
 }
@@ -342,6 +355,8 @@ struct Work {
     gy: Vec<f32>,
     cur: Vec<f32>,
     block: Vec<u8>,
+    /// The affine levels' steepest-descent images, six values per template pixel.
+    sd: Vec<f32>,
 }
 
 impl Work {
@@ -353,8 +368,38 @@ impl Work {
             gy: vec![0.0; n * n],
             cur: vec![0.0; n * n],
             block: Vec::with_capacity((n + 3) * (n + 3)),
+            sd: vec![0.0; 6 * n * n],
         }
     }
+}
+
+/// Samples the template window centred at `p` in `prev` and its gradients into `wk`; returns
+/// the structure tensor `(hxx, hxy, hyy)`, or `None` if the window is untextured (its smaller
+/// eigenvalue per pixel below `params.min_eigenvalue`, or a singular tensor).
+#[inline(always)]
+fn prepare_template<const AVX2: bool>(
+    prev: &Image<u8>,
+    p: [f32; 2],
+    params: &LkParams,
+    wk: &mut Work,
+) -> Option<(f32, f32, f32)> {
+    let r = params.window_radius;
+    let n = 2 * r + 1;
+    let rf = r as f32;
+    sample_patch::<AVX2>(
+        prev,
+        p[0] - rf - 1.0,
+        p[1] - rf - 1.0,
+        n + 2,
+        &mut wk.big,
+        &mut wk.block,
+    );
+    template_gradients::<AVX2>(&wk.big, n, &mut wk.tmpl, &mut wk.gx, &mut wk.gy);
+    let (hxx, hxy, hyy) = structure_tensor::<AVX2>(&wk.gx, &wk.gy);
+    let npx = (n * n) as f32;
+    let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt()) / npx;
+    (min_eig >= params.min_eigenvalue && hxx * hyy - hxy * hxy > f32::EPSILON)
+        .then_some((hxx, hxy, hyy))
 }
 
 /// Tracks one point on one level: template centred at `p` in `prev`, initial displacement `g`.
@@ -370,24 +415,9 @@ fn track_level<const AVX2: bool>(
 ) -> Option<[f32; 2]> {
     let r = params.window_radius;
     let n = 2 * r + 1;
-    let nb = n + 2;
     let rf = r as f32;
-    sample_patch::<AVX2>(
-        prev,
-        p[0] - rf - 1.0,
-        p[1] - rf - 1.0,
-        nb,
-        &mut wk.big,
-        &mut wk.block,
-    );
-    template_gradients::<AVX2>(&wk.big, n, &mut wk.tmpl, &mut wk.gx, &mut wk.gy);
-    let (hxx, hxy, hyy) = structure_tensor::<AVX2>(&wk.gx, &wk.gy);
-    let npx = (n * n) as f32;
-    let min_eig = 0.5 * (hxx + hyy - ((hxx - hyy) * (hxx - hyy) + 4.0 * hxy * hxy).sqrt()) / npx;
+    let (hxx, hxy, hyy) = prepare_template::<AVX2>(prev, p, params, wk)?;
     let det = hxx * hyy - hxy * hxy;
-    if min_eig < params.min_eigenvalue || det <= f32::EPSILON {
-        return None;
-    }
     let (ixx, ixy, iyy) = (hyy / det, -hxy / det, hxx / det);
     let mut g = g;
     let mut prev_step = [f32::NAN, f32::NAN];
@@ -427,6 +457,175 @@ fn track_level<const AVX2: bool>(
     }
 }
 
+/// `Σ aᵢ·bᵢ` in eight lane-wise partial sums (lane `i` accumulates elements `i, i + 8, …`), the
+/// lanes then summed in order and the remainder added: vectorised in the AVX2 instance, the
+/// same order on both paths.
+#[inline(always)]
+fn lane_dot(a: &[f32], b: &[f32]) -> f32 {
+    const L: usize = 8;
+    assert_eq!(a.len(), b.len());
+    let full = a.len() / L * L;
+    let mut acc = [0.0f32; L];
+    for (x, y) in a[..full].chunks_exact(L).zip(b[..full].chunks_exact(L)) {
+        for i in 0..L {
+            acc[i] += x[i] * y[i];
+        }
+    }
+    let mut s = acc.iter().sum::<f32>();
+    for i in full..a.len() {
+        s += a[i] * b[i];
+    }
+    s
+}
+
+/// The 2×2 part of an affine warp, row-major: offset `o` from the template's centre maps to
+/// `(a₀·o_x + a₁·o_y, a₂·o_x + a₃·o_y)` (the layout of [`crate::interp::bilinear_grid`]).
+pub type Affine = [f32; 4];
+
+/// The identity [`Affine`].
+pub const IDENTITY: Affine = [1.0, 0.0, 0.0, 1.0];
+
+/// The inverse of `a`, `None` if it is singular.
+fn invert(a: Affine) -> Option<Affine> {
+    let det = a[0] * a[3] - a[1] * a[2];
+    (det.abs() > f32::EPSILON).then(|| [a[3] / det, -a[1] / det, -a[2] / det, a[0] / det])
+}
+
+/// Samples `next` on the `n×n` grid of the warp (centre `c`, part `a`) into `out`, replicating
+/// the border for samples outside the image (as [`sample_patch`]); [`bilinear_grid`]'s fast path
+/// when the whole grid is inside.
+///
+/// [`bilinear_grid`]: crate::interp::bilinear_grid
+fn sample_warped(next: &Image<u8>, c: [f32; 2], a: Affine, n: usize, out: &mut [f32]) {
+    if crate::interp::bilinear_grid(next, c[0], c[1], a, n, out) {
+        return;
+    }
+    // The border: each sample clamped into the image (a window that reaches over the border
+    // is common on the coarser levels), its taps read directly.
+    let (w, h) = (next.width(), next.height());
+    let (wm, hm) = ((w - 1) as f32, (h - 1) as f32);
+    let (st, data) = (next.stride(), next.data());
+    let half = (n as f32 - 1.0) / 2.0;
+    for i in 0..n {
+        let oy = i as f32 - half;
+        for j in 0..n {
+            let ox = j as f32 - half;
+            let u = (c[0] + a[0] * ox + a[1] * oy).clamp(0.0, wm);
+            let v = (c[1] + a[2] * ox + a[3] * oy).clamp(0.0, hm);
+            let (u0, v0) = (u as usize, v as usize);
+            let (fu, fv) = (u - u0 as f32, v - v0 as f32);
+            let (u1, v1) = ((u0 + 1).min(w - 1), (v0 + 1).min(h - 1));
+            let (r0, r1) = (&data[v0 * st..], &data[v1 * st..]);
+            let top = (1.0 - fu) * f32::from(r0[u0]) + fu * f32::from(r0[u1]);
+            let bottom = (1.0 - fu) * f32::from(r1[u0]) + fu * f32::from(r1[u1]);
+            out[i * n + j] = (1.0 - fv) * top + fv * bottom;
+        }
+    }
+}
+
+/// Tracks one point on one level with an affine warp: template centred at `p` in `prev`,
+/// initial displacement `g` of the centre and initial part `a`. Returns the refined pair, or
+/// `None` if the window is untextured, the warp degenerates (its area changes more than 4×) or
+/// the window leaves the image.
+///
+/// Inverse compositional: with the template's gradients `∇T` and offsets `o`, the
+/// steepest-descent images are `∇T·∂W/∂(d, D) = (g_x, g_y, g_x o_x, g_x o_y, g_y o_x, g_y o_y)`
+/// for the update warp `W(o; d, D) = (I + D)·o + d`; their Hessian is built and factored once, and
+/// each step composes `W ← W ∘ W(Δ)⁻¹`, i.e. `A ← A·(I + D)⁻¹`, `c ← c − A·d`.
+#[inline(always)]
+fn track_level_affine<const AVX2: bool>(
+    prev: &Image<u8>,
+    next: &Image<u8>,
+    p: [f32; 2],
+    g: [f32; 2],
+    a: Affine,
+    params: &LkParams,
+    wk: &mut Work,
+) -> Option<([f32; 2], Affine)> {
+    let r = params.window_radius;
+    let n = 2 * r + 1;
+    let rf = r as f32;
+    prepare_template::<AVX2>(prev, p, params, wk)?;
+    // Steepest-descent images, one plane per parameter, and their Hessian: 21 dot products
+    // summed in f32 lanes (as `residual_dot`), factored in f64 (the affine columns reach r²
+    // times the translation ones).
+    let nn = n * n;
+    for i in 0..n {
+        let oy = i as f32 - rf;
+        for j in 0..n {
+            let ox = j as f32 - rf;
+            let k = i * n + j;
+            let (gx, gy) = (wk.gx[k], wk.gy[k]);
+            wk.sd[k] = gx;
+            wk.sd[nn + k] = gy;
+            wk.sd[2 * nn + k] = gx * ox;
+            wk.sd[3 * nn + k] = gx * oy;
+            wk.sd[4 * nn + k] = gy * ox;
+            wk.sd[5 * nn + k] = gy * oy;
+        }
+    }
+    let mut hess = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+    for r0 in 0..6 {
+        for c0 in r0..6 {
+            let v = f64::from(lane_dot(
+                &wk.sd[r0 * nn..(r0 + 1) * nn],
+                &wk.sd[c0 * nn..(c0 + 1) * nn],
+            ));
+            hess[(r0, c0)] = v;
+            hess[(c0, r0)] = v;
+        }
+    }
+    let chol = hess.cholesky()?;
+    let (mut c, mut a) = ([p[0] + g[0], p[1] + g[1]], a);
+    for _ in 0..params.max_iterations {
+        if !(c[0] > -rf
+            && c[1] > -rf
+            && c[0] < next.width() as f32 + rf
+            && c[1] < next.height() as f32 + rf)
+        {
+            return None;
+        }
+        sample_warped(next, c, a, n, &mut wk.cur);
+        for (e, t) in wk.cur.iter_mut().zip(&wk.tmpl) {
+            *e -= t;
+        }
+        // A plain loop (a closure would not inline into the AVX2 instance).
+        let mut b = [0.0f32; 6];
+        for (m, bm) in b.iter_mut().enumerate() {
+            *bm = lane_dot(&wk.sd[m * nn..(m + 1) * nn], &wk.cur);
+        }
+        let delta = chol.solve(&nalgebra::SVector::<f64, 6>::from(b.map(f64::from)));
+        let d = [delta[0] as f32, delta[1] as f32];
+        let inc = invert([
+            1.0 + delta[2] as f32,
+            delta[3] as f32,
+            delta[4] as f32,
+            1.0 + delta[5] as f32,
+        ])?;
+        a = [
+            a[0] * inc[0] + a[1] * inc[2],
+            a[0] * inc[1] + a[1] * inc[3],
+            a[2] * inc[0] + a[3] * inc[2],
+            a[2] * inc[1] + a[3] * inc[3],
+        ];
+        let step = [a[0] * d[0] + a[1] * d[1], a[2] * d[0] + a[3] * d[1]];
+        c = [c[0] - step[0], c[1] - step[1]];
+        let det = a[0] * a[3] - a[1] * a[2];
+        if !(0.25..=4.0).contains(&det) || !c[0].is_finite() || !c[1].is_finite() {
+            return None;
+        }
+        // Converged when the window's centre and its corners move less than ε.
+        let corner =
+            rf * (delta[2].abs() + delta[3].abs()).max(delta[4].abs() + delta[5].abs()) as f32;
+        if step[0].hypot(step[1]) < params.epsilon && corner < params.epsilon {
+            return Some(([c[0] - p[0], c[1] - p[1]], a));
+        }
+    }
+    // Not converged: a warp sliding along a valley of the cost (an edge's aperture, a blurred
+    // or self-similar patch), not a measurement of the patch's deformation.
+    None
+}
+
 /// Tracks `points` (level-0 pixel coordinates in `prev`) into `next`, coarse to fine over
 /// `params.levels` levels of the two pyramids (built with [`Pyramid::new`], same depth).
 /// `initial` optionally gives predicted positions in `next`. Returns the tracked positions;
@@ -438,14 +637,30 @@ pub fn track(
     initial: Option<&[[f32; 2]]>,
     params: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
+    track_warps(prev, next, points, initial, None, params)
+        .into_iter()
+        .map(|t| t.map(|(q, _)| q))
+        .collect()
+}
+
+/// [`track`], with each track's final warp part (the [`IDENTITY`] when `params.affine_levels`
+/// is 0) and optionally the affine levels' initial parts.
+fn track_warps(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[[f32; 2]],
+    initial: Option<&[[f32; 2]]>,
+    initial_affine: Option<&[Affine]>,
+    params: &LkParams,
+) -> Vec<Option<([f32; 2], Affine)>> {
     #[cfg(target_arch = "x86_64")]
     {
         if crate::simd::avx2() {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { track_avx2(prev, next, points, initial, params) };
+            return unsafe { track_avx2(prev, next, points, initial, initial_affine, params) };
         }
     }
-    track_impl::<false>(prev, next, points, initial, params)
+    track_impl::<false>(prev, next, points, initial, initial_affine, params)
 }
 
 /// [`track_impl`] compiled for AVX2 (runtime dispatch; identical arithmetic, wider vectors).
@@ -456,9 +671,10 @@ unsafe fn track_avx2(
     next: &Pyramid,
     points: &[[f32; 2]],
     initial: Option<&[[f32; 2]]>,
+    initial_affine: Option<&[Affine]>,
     params: &LkParams,
-) -> Vec<Option<[f32; 2]>> {
-    track_impl::<true>(prev, next, points, initial, params)
+) -> Vec<Option<([f32; 2], Affine)>> {
+    track_impl::<true>(prev, next, points, initial, initial_affine, params)
 }
 
 #[inline(always)]
@@ -467,8 +683,9 @@ fn track_impl<const AVX2: bool>(
     next: &Pyramid,
     points: &[[f32; 2]],
     initial: Option<&[[f32; 2]]>,
+    initial_affine: Option<&[Affine]>,
     params: &LkParams,
-) -> Vec<Option<[f32; 2]>> {
+) -> Vec<Option<([f32; 2], Affine)>> {
     let levels = params.levels.min(prev.len()).min(next.len()).max(1);
     let (prev_f, next_f) = (&prev.levels, &next.levels);
     let mut wk = Work::new(2 * params.window_radius + 1);
@@ -487,14 +704,29 @@ fn track_impl<const AVX2: bool>(
             Some(v) if i < v.len() => v[i],
             _ => *p,
         };
+        let mut a = match initial_affine {
+            Some(v) if i < v.len() => v[i],
+            _ => IDENTITY,
+        };
         let top = levels - 1;
         let s = (1u32 << top) as f32;
         let mut g = [(pred[0] - p[0]) / s, (pred[1] - p[1]) / s];
         for l in (0..levels).rev() {
             let s = (1u32 << l) as f32;
             let pl = [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
-            match track_level::<AVX2>(&prev_f[l], &next_f[l], pl, g, params, &mut wk) {
-                Some(x) => g = x,
+            // An affine level that finds no deformation it can trust tracks the translation
+            // (with the part it started from), as the translation-only tracker would.
+            let tracked = (l < params.affine_levels)
+                .then(|| {
+                    track_level_affine::<AVX2>(&prev_f[l], &next_f[l], pl, g, a, params, &mut wk)
+                })
+                .flatten()
+                .or_else(|| {
+                    track_level::<AVX2>(&prev_f[l], &next_f[l], pl, g, params, &mut wk)
+                        .map(|g| (g, a))
+                });
+            match tracked {
+                Some(x) => (g, a) = x,
                 None => {
                     out.push(None);
                     continue 'points;
@@ -508,14 +740,15 @@ fn track_impl<const AVX2: bool>(
         if q[0] < 0.0 || q[1] < 0.0 || q[0] > w0 - 1.0 || q[1] > h0 - 1.0 {
             out.push(None);
         } else {
-            out.push(Some(q));
+            out.push(Some((q, a)));
         }
     }
     out
 }
 
-/// [`track`] followed by tracking the results back from `next` to `prev`; a track is kept only
-/// if the backward track returns within `max_fb_error` pixels of its start.
+/// [`track`] followed by tracking the results back from `next` to `prev`, started at the
+/// points and, on the affine levels, at the inverse of the forward warp; a track is kept only if
+/// the backward track returns within `max_fb_error` pixels of its start.
 pub fn track_forward_backward(
     prev: &Pyramid,
     next: &Pyramid,
@@ -523,17 +756,22 @@ pub fn track_forward_backward(
     params: &LkParams,
     max_fb_error: f32,
 ) -> Vec<Option<[f32; 2]>> {
-    let fwd = track(prev, next, points, None, params);
-    let valid: Vec<[f32; 2]> = fwd
+    let fwd = track_warps(prev, next, points, None, None, params);
+    let (valid, inverse): (Vec<[f32; 2]>, Vec<Affine>) = fwd
         .iter()
-        .map(|q| q.unwrap_or([f32::NAN, f32::NAN]))
-        .collect();
-    let back = track(next, prev, &valid, Some(points), params);
+        .map(|t| match t {
+            Some((q, a)) => (*q, invert(*a).unwrap_or(IDENTITY)),
+            None => ([f32::NAN, f32::NAN], IDENTITY),
+        })
+        .unzip();
+    let back = track_warps(next, prev, &valid, Some(points), Some(&inverse), params);
     fwd.into_iter()
         .zip(back)
         .zip(points)
         .map(|((f, b), p)| match (f, b) {
-            (Some(f), Some(b)) if (b[0] - p[0]).hypot(b[1] - p[1]) <= max_fb_error => Some(f),
+            (Some((f, _)), Some((b, _))) if (b[0] - p[0]).hypot(b[1] - p[1]) <= max_fb_error => {
+                Some(f)
+            }
             _ => None,
         })
         .collect()
@@ -577,6 +815,74 @@ mod tests {
         }
     }
 
+    /// A smooth texture seen by a camera that moved towards it: `b(x) = a(c + (x − c)/zoom)`,
+    /// so that `a`'s point `p` is at `c + zoom·(p − c)` in `b`.
+    fn zoomed(w: usize, h: usize, zoom: f32, c: [f32; 2]) -> (GrayImage, GrayImage) {
+        let f = |x: f32, y: f32| {
+            let val = 128.0
+                + 50.0 * (x * 0.23).sin() * (y * 0.19).cos()
+                + 35.0 * ((x - 1.7 * y) * 0.09).sin()
+                + 25.0 * ((0.6 * x + y) * 0.31).cos();
+            val.clamp(0.0, 255.0) as u8
+        };
+        let a = GrayImage::from_fn(w, h, |u, v| f(u as f32, v as f32));
+        let b = GrayImage::from_fn(w, h, |u, v| {
+            f(
+                c[0] + (u as f32 - c[0]) / zoom,
+                c[1] + (v as f32 - c[1]) / zoom,
+            )
+        });
+        (a, b)
+    }
+
+    /// On a patch that grows by 8 % between the frames, a translation-only window lags the
+    /// flow (it is pulled towards the texture it still sees); the affine finest level follows
+    /// the growth and finds the point.
+    #[test]
+    fn the_affine_level_follows_a_growing_patch_that_translation_lags() {
+        let (c, zoom) = ([120.0, 90.0], 1.08);
+        let (a, b) = zoomed(240, 180, zoom, c);
+        let pa = Pyramid::new(&a, 3, 8).unwrap();
+        let pb = Pyramid::new(&b, 3, 8).unwrap();
+        let pts: Vec<[f32; 2]> = [[60.0, 50.0], [180.0, 60.0], [70.0, 130.0], [175.0, 125.0]]
+            .into_iter()
+            .collect();
+        let truth: Vec<[f32; 2]> = pts
+            .iter()
+            .map(|p| [c[0] + zoom * (p[0] - c[0]), c[1] + zoom * (p[1] - c[1])])
+            .collect();
+        let worst = |affine_levels: usize| {
+            let params = LkParams {
+                levels: 3,
+                affine_levels,
+                ..Default::default()
+            };
+            track(&pa, &pb, &pts, None, &params)
+                .iter()
+                .zip(&truth)
+                .map(|(q, t)| {
+                    let q = q.expect("tracked");
+                    (q[0] - t[0]).hypot(q[1] - t[1])
+                })
+                .fold(0.0f32, f32::max)
+        };
+        let (translation, affine) = (worst(0), worst(1));
+        assert!(affine < 0.05, "affine error {affine} px");
+        assert!(
+            translation > 4.0 * affine,
+            "translation {translation} vs affine {affine} px"
+        );
+        // The forward-backward check keeps the affine tracks (their backward pass starts at the
+        // inverse warp) within a tight gate.
+        let params = LkParams {
+            levels: 3,
+            affine_levels: 1,
+            ..Default::default()
+        };
+        let kept = track_forward_backward(&pa, &pb, &pts, &params, 0.1);
+        assert!(kept.iter().all(Option::is_some), "{kept:?}");
+    }
+
     #[test]
     fn simd_and_scalar_paths_agree_bit_for_bit() {
         use rand::{Rng, SeedableRng};
@@ -604,6 +910,14 @@ mod tests {
             let fast = track(&pa, &pb, &pts, None, &params);
             let scalar = crate::simd::scalar_only(|| track(&pa, &pb, &pts, None, &params));
             assert_eq!(fast, scalar);
+            let affine = LkParams {
+                affine_levels: 2,
+                ..params
+            };
+            let fast_affine = track_forward_backward(&pa, &pb, &pts, &affine, 1.0);
+            let scalar_affine =
+                crate::simd::scalar_only(|| track_forward_backward(&pa, &pb, &pts, &affine, 1.0));
+            assert_eq!(fast_affine, scalar_affine);
             assert!(
                 fast.iter().filter(|t| t.is_some()).count() > 50,
                 "tracks something"
