@@ -216,10 +216,20 @@ pub fn relocate(
     at: Vector2<f64>,
     max_shift: f64,
     min_ncc: f32,
+    max_scale: Option<f64>,
 ) -> Option<Vector2<f64>> {
     let WarpedTemplate { warp, template, .. } =
         WarpedTemplate::new(camera, camera_from_world, point, anchor)?;
     let (ua, va) = (point.anchor_pixel.x as f32, point.anchor_pixel.y as f32);
+    // A template is a model of its point at the anchor's scale (PTAM searches it on the
+    // pyramid level nearest that scale): a view that sees the point at another level of
+    // detail — nearer after driving towards it — stands as its track measured it.
+    if let Some(limit) = max_scale {
+        let scale = warp.determinant().abs().sqrt();
+        if scale > limit || scale < 1.0 / limit {
+            return Some(at);
+        }
+    }
     let tg = template_with_gradient(&anchor.gray, ua, va, &warp)?;
     let refined = refine_subpixel(&tg, image, [at.x as f32, at.y as f32], 10)?;
     let moved = Vector2::new(refined[0] as f64, refined[1] as f64);
@@ -276,12 +286,50 @@ mod tests {
         let truth = anchor_pixel + Vector2::new(dx, dy);
         let pose = Se3::identity();
         let drifted = truth + Vector2::new(0.6, 0.7);
-        let found = relocate(&camera, &pose, &point, &anchor, &image, drifted, 3.0, 0.8).unwrap();
+        let found = relocate(
+            &camera, &pose, &point, &anchor, &image, drifted, 3.0, 0.8, None,
+        )
+        .unwrap();
         assert!((found - truth).norm() < 0.05, "{found:?} vs {truth:?}");
         // Allowed to move 0.5 px only: refused.
-        assert!(relocate(&camera, &pose, &point, &anchor, &image, drifted, 0.5, 0.8).is_none());
+        assert!(
+            relocate(
+                &camera, &pose, &point, &anchor, &image, drifted, 0.5, 0.8, None
+            )
+            .is_none()
+        );
         // Another texture where the point was: no correlation.
         let other = texture(dx, dy, 1.9);
-        assert!(relocate(&camera, &pose, &point, &anchor, &other, truth, 3.0, 0.8).is_none());
+        assert!(
+            relocate(
+                &camera, &pose, &point, &anchor, &other, truth, 3.0, 0.8, None
+            )
+            .is_none()
+        );
+        // The camera moved halfway to the point: the template, taken at twice the distance,
+        // shows it at half the scale, beyond half an octave. Within √2 of scale only, the
+        // track's measurement stands (as `mono.verify_within_scale`); without the limit the
+        // magnified template is aligned (and here, the image not being that view, refused).
+        let nearer = Se3::from_translation(Vector3::new(0.0, 0.0, -0.5 * depth)).compose(&pose);
+        assert_eq!(
+            relocate(
+                &camera,
+                &nearer,
+                &point,
+                &anchor,
+                &image,
+                drifted,
+                3.0,
+                0.8,
+                Some(2f64.sqrt())
+            ),
+            Some(drifted)
+        );
+        assert_ne!(
+            relocate(
+                &camera, &nearer, &point, &anchor, &image, drifted, 3.0, 0.8, None
+            ),
+            Some(drifted)
+        );
     }
 }

@@ -88,6 +88,13 @@ pub struct MonoConfig {
     /// Pyramid levels of the tracking (4, as the front-end: ±40 px of motion at the finest
     /// level with LK's ±3 px per level).
     pub levels: usize,
+    /// The finest pyramid levels on which a track's warp is affine rather than a translation
+    /// (`vision::lk::LkParams::affine_levels`; 0: translation everywhere, the default so far).
+    /// A translation-only window lags a patch that grows — every point of a forward drive —
+    /// by up to 0.8 px on KITTI's road (`vision_bench lkroad`), a radial error the estimate
+    /// turns into scale drift; affine levels follow the growth (bench/README.md, "The affine
+    /// tracker"). Each affine level costs about as much as the whole translation tracker.
+    pub lk_affine_levels: usize,
     /// Features (map points and filters) the exploration keeps (300, as many as the corner
     /// tracks: ≈ one per 32×32 px at 640×480, the density of the stereo system's 300 new points
     /// per keyframe). The thesis's §3.4.3 density for its simulated exploration, 150, left a
@@ -170,6 +177,14 @@ pub struct MonoConfig {
     /// every frame; a point measured for hundreds of frames (a camera browsing a mapped place)
     /// would otherwise be measured where its track has wandered to.
     pub verify_tracks: bool,
+    /// `verify_tracks` only where the template's predicted scale in the frame is within this
+    /// factor of its anchor's (√2 ≈ 1.41: half an octave, the scales one pyramid level's
+    /// template stands for, as PTAM picks the level); elsewhere the track's measurement
+    /// stands. `None`: everywhere (the default so far). Driving forward brings every point
+    /// nearer, and a template taken far away and magnified no longer shows the point's detail:
+    /// on KITTI 04 the check then drops and moves the tracks that carry the parallax
+    /// (bench/README.md, "The affine tracker").
+    pub verify_within_scale: Option<f64>,
     /// The keyframes whose points are searched: of the last keyframe's neighbourhood (`N2`,
     /// thesis §6.4.1: the first `mapping.n2` keyframes of a breadth-first search over the
     /// keyframes sharing `mapping.theta` points, consecutive keyframes and accepted loops), the
@@ -300,6 +315,7 @@ impl Default for MonoConfig {
             min_cell: 8.0,
             max_forward_backward: 1.0,
             levels: 4,
+            lk_affine_levels: 0,
             max_features: 300,
             feature_spacing: 12.0,
             seed: 0,
@@ -315,6 +331,7 @@ impl Default for MonoConfig {
             replenish_fraction: 0.9,
             refind: true,
             verify_tracks: true,
+            verify_within_scale: None,
             refind_keyframes: 8,
             max_refind: 500,
             double_window: false,
@@ -884,6 +901,15 @@ impl MonoConfig {
     /// Checks the ranges; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
         let m = self;
+        if m.lk_affine_levels > m.levels {
+            return Err(format!(
+                "mono.lk_affine_levels ({}) cannot exceed mono.levels ({})",
+                m.lk_affine_levels, m.levels
+            ));
+        }
+        if m.verify_within_scale.is_some_and(|s| s.is_nan() || s < 1.0) {
+            return Err("mono.verify_within_scale must be at least 1 (a factor of scale)".into());
+        }
         if m.tracks < 8 || m.levels == 0 || m.window < 2 || m.max_features < 8 {
             return Err(
                 "mono.tracks and mono.max_features must be at least 8, mono.levels at least 1, mono.window at least 2"
@@ -1066,6 +1092,17 @@ mod tests {
         let c = SystemConfig::from_yaml("stereo:\n  threads: 3\n").unwrap();
         assert_eq!(c.stereo.threads(), 3);
         assert!(SystemConfig::default().stereo.threads() >= 1);
+        let c =
+            SystemConfig::from_yaml("mono:\n  lk_affine_levels: 2\n  verify_within_scale: 1.41\n")
+                .unwrap();
+        assert_eq!(
+            (c.mono.lk_affine_levels, c.mono.verify_within_scale),
+            (2, Some(1.41))
+        );
+        let e = SystemConfig::from_yaml("mono:\n  lk_affine_levels: 5\n").unwrap_err();
+        assert!(e.to_string().contains("lk_affine_levels"), "{e}");
+        let e = SystemConfig::from_yaml("mono:\n  verify_within_scale: 0.5\n").unwrap_err();
+        assert!(e.to_string().contains("verify_within_scale"), "{e}");
     }
 
     #[test]

@@ -599,6 +599,7 @@ impl MonoSensor {
         let store = read_lock(ctx.store);
         let active = explorer.active();
         let (radius, min_ncc) = (ctx.config.tracker.search_radius, ctx.config.tracker.min_ncc);
+        let max_scale = ctx.config.mono.verify_within_scale;
         let before = measurements.len();
         let mut moved: Vec<(TrackId, [f32; 2])> = Vec::new();
         measurements.retain_mut(|(track, z)| {
@@ -611,7 +612,17 @@ impl MonoSensor {
             else {
                 return true;
             };
-            match relocate(&self.camera, &pose, &sp, anchor, image, *z, radius, min_ncc) {
+            match relocate(
+                &self.camera,
+                &pose,
+                &sp,
+                anchor,
+                image,
+                *z,
+                radius,
+                min_ncc,
+                max_scale,
+            ) {
                 Some(u) => {
                     *z = u;
                     moved.push((*track, [u.x as f32, u.y as f32]));

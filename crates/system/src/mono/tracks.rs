@@ -96,6 +96,7 @@ impl CornerTracks {
                 &from,
                 &LkParams {
                     levels,
+                    affine_levels: self.config.lk_affine_levels,
                     ..LkParams::default()
                 },
                 self.config.max_forward_backward,
