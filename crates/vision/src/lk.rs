@@ -756,7 +756,25 @@ pub fn track_forward_backward(
     params: &LkParams,
     max_fb_error: f32,
 ) -> Vec<Option<[f32; 2]>> {
-    let fwd = track_warps(prev, next, points, None, None, params);
+    track_forward_backward_warps(prev, next, points, None, params, max_fb_error)
+        .into_iter()
+        .map(|t| t.map(|(q, _)| q))
+        .collect()
+}
+
+/// [`track_forward_backward`] with the affine levels started from `initial_affine` (per point;
+/// the [`IDENTITY`] where not given — a track's warp in the previous frame predicts the next
+/// one's, and a warm start saves most of the affine iterations), returning each kept track's
+/// final warp part with its position.
+pub fn track_forward_backward_warps(
+    prev: &Pyramid,
+    next: &Pyramid,
+    points: &[[f32; 2]],
+    initial_affine: Option<&[Affine]>,
+    params: &LkParams,
+    max_fb_error: f32,
+) -> Vec<Option<([f32; 2], Affine)>> {
+    let fwd = track_warps(prev, next, points, None, initial_affine, params);
     let (valid, inverse): (Vec<[f32; 2]>, Vec<Affine>) = fwd
         .iter()
         .map(|t| match t {
@@ -769,9 +787,7 @@ pub fn track_forward_backward(
         .zip(back)
         .zip(points)
         .map(|((f, b), p)| match (f, b) {
-            (Some((f, _)), Some((b, _))) if (b[0] - p[0]).hypot(b[1] - p[1]) <= max_fb_error => {
-                Some(f)
-            }
+            (Some(f), Some((b, _))) if (b[0] - p[0]).hypot(b[1] - p[1]) <= max_fb_error => Some(f),
             _ => None,
         })
         .collect()

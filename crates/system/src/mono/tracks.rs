@@ -9,7 +9,7 @@ use crate::config::MonoConfig;
 use slam::exploration::TrackId;
 use vision::fast::FrameCorners;
 use vision::image::ImageError;
-use vision::lk::{LkParams, track_forward_backward};
+use vision::lk::{Affine, IDENTITY, LkParams, track_forward_backward_warps};
 use vision::pyramid::Pyramid;
 use vision::quadtree::select_among;
 
@@ -34,6 +34,9 @@ pub struct CornerTracks {
     config: MonoConfig,
     /// The previous frame's pyramid and its live tracks.
     previous: Option<(Pyramid, Tracks)>,
+    /// Each live track's warp part into the previous frame (`mono.lk_affine_levels`; the
+    /// identity for a new track), in the order of the tracks: the next frame's prediction.
+    warps: Vec<Affine>,
     next: TrackId,
     /// Scratch of the spacing test: per grid cell, the tracks in it.
     grid: Vec<Vec<[f32; 2]>>,
@@ -45,6 +48,7 @@ impl CornerTracks {
         CornerTracks {
             config: config.clone(),
             previous: None,
+            warps: Vec::new(),
             next: 0,
             grid: Vec::new(),
         }
@@ -56,6 +60,7 @@ impl CornerTracks {
         let id = self.next;
         self.next += 1;
         live.push((id, p));
+        self.warps.push(IDENTITY);
         Some(id)
     }
 
@@ -72,6 +77,7 @@ impl CornerTracks {
     /// Forgets every track: the next frame starts afresh (ids keep increasing).
     pub fn reset(&mut self) {
         self.previous = None;
+        self.warps.clear();
     }
 
     /// Follows the tracks into the image of `corners` and replenishes them (among its FAST
@@ -88,12 +94,14 @@ impl CornerTracks {
         let pyramid = Pyramid::new(image, levels, 16)?;
         let (w, h) = (image.width() as f32, image.height() as f32);
         let mut live = Vec::new();
+        let mut warps = Vec::new();
         if let Some((previous, tracks)) = &self.previous {
             let from: Vec<[f32; 2]> = tracks.iter().map(|t| t.1).collect();
-            let to = track_forward_backward(
+            let to = track_forward_backward_warps(
                 previous,
                 &pyramid,
                 &from,
+                Some(&self.warps),
                 &LkParams {
                     levels,
                     affine_levels: self.config.lk_affine_levels,
@@ -102,14 +110,16 @@ impl CornerTracks {
                 self.config.max_forward_backward,
             );
             live.reserve(tracks.len());
-            for ((id, _), p) in tracks.iter().zip(to) {
-                if let Some(p) = p
+            warps.reserve(tracks.len());
+            for ((id, _), t) in tracks.iter().zip(to) {
+                if let Some((p, a)) = t
                     && p[0] >= 0.0
                     && p[1] >= 0.0
                     && p[0] <= w - 1.0
                     && p[1] <= h - 1.0
                 {
                     live.push((*id, p));
+                    warps.push(a);
                 }
             }
             let of = tracks.len();
@@ -123,6 +133,8 @@ impl CornerTracks {
         if (live.len() as f64) < self.config.replenish_fraction * self.config.tracks as f64 {
             self.replenish(corners, &mut live);
         }
+        warps.resize(live.len(), IDENTITY);
+        self.warps = warps;
         let (_, tracks) = self.previous.insert((pyramid, live));
         Ok(Ok(tracks))
     }
