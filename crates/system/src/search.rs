@@ -247,13 +247,17 @@ mod tests {
     /// A smooth texture, shifted by `(dx, dy)` pixels (exact at any sub-pixel shift).
     fn texture(dx: f64, dy: f64, phase: f64) -> GrayImage {
         GrayImage::from_fn(160, 120, |u, v| {
-            let (x, y) = (u as f64 - dx, v as f64 - dy);
-            let i = 128.0
-                + 40.0 * (0.31 * x + 0.17 * y + phase).sin()
-                + 30.0 * (0.19 * x - 0.29 * y).sin()
-                + 20.0 * (0.43 * x + 0.11 * y - phase).cos();
-            i.round().clamp(0.0, 255.0) as u8
+            texture_at(u as f64 - dx, v as f64 - dy, phase)
         })
+    }
+
+    /// The texture's value at real coordinates `(x, y)`.
+    fn texture_at(x: f64, y: f64, phase: f64) -> u8 {
+        let i = 128.0
+            + 40.0 * (0.31 * x + 0.17 * y + phase).sin()
+            + 30.0 * (0.19 * x - 0.29 * y).sin()
+            + 20.0 * (0.43 * x + 0.11 * y - phase).cos();
+        i.round().clamp(0.0, 255.0) as u8
     }
 
     /// A track that drifted 0.9 px off its point is moved back onto it (the template from the
@@ -306,30 +310,48 @@ mod tests {
             )
             .is_none()
         );
-        // The camera moved halfway to the point: the template, taken at twice the distance,
-        // shows it at half the scale, beyond half an octave. Within √2 of scale only, the
-        // track's measurement stands (as `mono.verify_within_scale`); without the limit the
-        // magnified template is aligned (and here, the image not being that view, refused).
+        // A track 2.5 px off: the alignment leaves its 2 px basin on the way, and the track is
+        // refused with it (keeping such tracks instead, as no evidence either way, was tried:
+        // bench/README.md, "Verification by evidence").
+        let far = truth + Vector2::new(2.0, 1.5);
+        assert!(relocate(&camera, &pose, &point, &anchor, &image, far, 3.0, 0.8, None).is_none());
+        // The camera moved halfway to the point: the point at (60, 50), seen twice as large.
+        // The template, magnified from the anchor, aligns there (to 0.15 px: the magnified
+        // template is a blurred model of the view); within √2 of scale only
+        // (`mono.verify_within_scale`), the track's measurement stands unchecked.
         let nearer = Se3::from_translation(Vector3::new(0.0, 0.0, -0.5 * depth)).compose(&pose);
+        let near_truth = Vector2::new(60.0, 50.0);
+        let near_image = GrayImage::from_fn(160, 120, |u, v| {
+            let (x, y) = (u as f64 - near_truth.x, v as f64 - near_truth.y);
+            texture_at(anchor_pixel.x + 0.5 * x, anchor_pixel.y + 0.5 * y, 0.0)
+        });
+        let near_drifted = near_truth + Vector2::new(0.6, 0.7);
+        let aligned = relocate(
+            &camera,
+            &nearer,
+            &point,
+            &anchor,
+            &near_image,
+            near_drifted,
+            3.0,
+            0.8,
+            None,
+        )
+        .unwrap();
+        assert!((aligned - near_truth).norm() < 0.25, "{aligned:?}");
         assert_eq!(
             relocate(
                 &camera,
                 &nearer,
                 &point,
                 &anchor,
-                &image,
-                drifted,
+                &near_image,
+                near_drifted,
                 3.0,
                 0.8,
                 Some(2f64.sqrt())
             ),
-            Some(drifted)
-        );
-        assert_ne!(
-            relocate(
-                &camera, &nearer, &point, &anchor, &image, drifted, 3.0, 0.8, None
-            ),
-            Some(drifted)
+            Some(near_drifted)
         );
     }
 }
