@@ -413,10 +413,24 @@ fn track_level<const AVX2: bool>(
     params: &LkParams,
     wk: &mut Work,
 ) -> Option<[f32; 2]> {
+    let tensor = prepare_template::<AVX2>(prev, p, params, wk)?;
+    solve_translation::<AVX2>(next, p, g, tensor, params, wk)
+}
+
+/// [`track_level`]'s Gauss-Newton iterations, on the template and its structure tensor already
+/// in `wk` ([`prepare_template`]; an affine level that falls back to translation reuses them).
+#[inline(always)]
+fn solve_translation<const AVX2: bool>(
+    next: &Image<u8>,
+    p: [f32; 2],
+    g: [f32; 2],
+    (hxx, hxy, hyy): (f32, f32, f32),
+    params: &LkParams,
+    wk: &mut Work,
+) -> Option<[f32; 2]> {
     let r = params.window_radius;
     let n = 2 * r + 1;
     let rf = r as f32;
-    let (hxx, hxy, hyy) = prepare_template::<AVX2>(prev, p, params, wk)?;
     let det = hxx * hyy - hxy * hxy;
     let (ixx, ixy, iyy) = (hyy / det, -hxy / det, hxx / det);
     let mut g = g;
@@ -523,10 +537,10 @@ fn sample_warped(next: &Image<u8>, c: [f32; 2], a: Affine, n: usize, out: &mut [
     }
 }
 
-/// Tracks one point on one level with an affine warp: template centred at `p` in `prev`,
-/// initial displacement `g` of the centre and initial part `a`. Returns the refined pair, or
-/// `None` if the window is untextured, the warp degenerates (its area changes more than 4×) or
-/// the window leaves the image.
+/// Tracks one point on one level with an affine warp: the template centred at `p` already in
+/// `wk` ([`prepare_template`]), initial displacement `g` of the centre and initial part `a`.
+/// Returns the refined pair, or `None` if the warp degenerates (its area changes more than 4×),
+/// the window leaves the image or the solve does not converge.
 ///
 /// Inverse compositional: with the template's gradients `∇T` and offsets `o`, the
 /// steepest-descent images are `∇T·∂W/∂(d, D) = (g_x, g_y, g_x o_x, g_x o_y, g_y o_x, g_y o_y)`
@@ -534,7 +548,6 @@ fn sample_warped(next: &Image<u8>, c: [f32; 2], a: Affine, n: usize, out: &mut [
 /// each step composes `W ← W ∘ W(Δ)⁻¹`, i.e. `A ← A·(I + D)⁻¹`, `c ← c − A·d`.
 #[inline(always)]
 fn track_level_affine<const AVX2: bool>(
-    prev: &Image<u8>,
     next: &Image<u8>,
     p: [f32; 2],
     g: [f32; 2],
@@ -545,7 +558,6 @@ fn track_level_affine<const AVX2: bool>(
     let r = params.window_radius;
     let n = 2 * r + 1;
     let rf = r as f32;
-    prepare_template::<AVX2>(prev, p, params, wk)?;
     // Steepest-descent images, one plane per parameter, and their Hessian: 21 dot products
     // summed in f32 lanes (as `residual_dot`), factored in f64 (the affine columns reach r²
     // times the translation ones).
@@ -715,16 +727,24 @@ fn track_impl<const AVX2: bool>(
             let s = (1u32 << l) as f32;
             let pl = [(p[0] + 0.5) / s - 0.5, (p[1] + 0.5) / s - 0.5];
             // An affine level that finds no deformation it can trust tracks the translation
-            // (with the part it started from), as the translation-only tracker would.
-            let tracked = (l < params.affine_levels)
-                .then(|| {
-                    track_level_affine::<AVX2>(&prev_f[l], &next_f[l], pl, g, a, params, &mut wk)
-                })
-                .flatten()
-                .or_else(|| {
-                    track_level::<AVX2>(&prev_f[l], &next_f[l], pl, g, params, &mut wk)
-                        .map(|g| (g, a))
-                });
+            // (with the part it started from), as the translation-only tracker would, on the
+            // template already prepared.
+            let tracked = if l < params.affine_levels {
+                match prepare_template::<AVX2>(&prev_f[l], pl, params, &mut wk) {
+                    Some(tensor) => {
+                        match track_level_affine::<AVX2>(&next_f[l], pl, g, a, params, &mut wk) {
+                            Some(x) => Some(x),
+                            None => solve_translation::<AVX2>(
+                                &next_f[l], pl, g, tensor, params, &mut wk,
+                            )
+                            .map(|g| (g, a)),
+                        }
+                    }
+                    None => None,
+                }
+            } else {
+                track_level::<AVX2>(&prev_f[l], &next_f[l], pl, g, params, &mut wk).map(|g| (g, a))
+            };
             match tracked {
                 Some(x) => (g, a) = x,
                 None => {
