@@ -197,10 +197,29 @@ impl WarpedTemplate {
     }
 }
 
+/// What [`relocate`] made of a corner track's measurement of a map point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Relocated {
+    /// The point is here: where its template aligned, or the track's own measurement where the
+    /// template is no model of the view (`max_scale`).
+    At(Vector2<f64>),
+    /// The alignment did not settle within its 2 px basin around the track (or the template
+    /// has no gradient to align by, or the patch left the image): no evidence either way —
+    /// a far view's template magnified into a smooth blob, motion blur, a corner that changed
+    /// its look. Refusing these cut a drive's tracks to a few frames (KITTI 04: a fifth of
+    /// the checks); the caller keeps the measurement on probation, for the pose to judge
+    /// (`slam::exploration::MonoExplorer::suspect`).
+    Unaligned,
+    /// Evidence that the track left its point: the template aligned farther than
+    /// `max_shift` from it or does not correlate with the image there (or cannot be warped
+    /// into this view at all).
+    Refused,
+}
+
 /// Re-locates `point` near `at`, where a corner track measures it: its template, warped from
 /// the anchor keyframe by the pose `camera_from_world` (a prediction is enough for the warp),
-/// is aligned to `image` from `at` to sub-pixel accuracy. The aligned position if it moved at
-/// most `max_shift` pixels and correlates with the template at least `min_ncc`, else `None`.
+/// is aligned to `image` from `at` to sub-pixel accuracy ([`Relocated`]): the aligned position
+/// if it moved at most `max_shift` pixels and correlates with the template at least `min_ncc`.
 ///
 /// Optical flow follows a corner from frame to frame and drifts with every step; the template
 /// is the point's appearance where it was first measured, so aligning to it measures the point
@@ -217,9 +236,12 @@ pub fn relocate(
     max_shift: f64,
     min_ncc: f32,
     max_scale: Option<f64>,
-) -> Option<Vector2<f64>> {
-    let WarpedTemplate { warp, template, .. } =
-        WarpedTemplate::new(camera, camera_from_world, point, anchor)?;
+) -> Relocated {
+    let Some(WarpedTemplate { warp, template, .. }) =
+        WarpedTemplate::new(camera, camera_from_world, point, anchor)
+    else {
+        return Relocated::Refused;
+    };
     let (ua, va) = (point.anchor_pixel.x as f32, point.anchor_pixel.y as f32);
     // A template is a model of its point at the anchor's scale (PTAM searches it on the
     // pyramid level nearest that scale): a view that sees the point at another level of
@@ -227,17 +249,23 @@ pub fn relocate(
     if let Some(limit) = max_scale {
         let scale = warp.determinant().abs().sqrt();
         if scale > limit || scale < 1.0 / limit {
-            return Some(at);
+            return Relocated::At(at);
         }
     }
-    let tg = template_with_gradient(&anchor.gray, ua, va, &warp)?;
-    let refined = refine_subpixel(&tg, image, [at.x as f32, at.y as f32], 10)?;
+    let Some(tg) = template_with_gradient(&anchor.gray, ua, va, &warp) else {
+        return Relocated::Refused;
+    };
+    let Some(refined) = refine_subpixel(&tg, image, [at.x as f32, at.y as f32], 10) else {
+        return Relocated::Unaligned;
+    };
     let moved = Vector2::new(refined[0] as f64, refined[1] as f64);
     if (moved - at).norm() > max_shift {
-        return None;
+        return Relocated::Refused;
     }
-    let p = Patch::extract(image, refined[0], refined[1])?;
-    (nssd(&template, &p) <= 2.0 - 2.0 * min_ncc).then_some(moved)
+    match Patch::extract(image, refined[0], refined[1]) {
+        Some(p) if nssd(&template, &p) <= 2.0 - 2.0 * min_ncc => Relocated::At(moved),
+        _ => Relocated::Refused,
+    }
 }
 
 #[cfg(test)]
@@ -262,7 +290,8 @@ mod tests {
 
     /// A track that drifted 0.9 px off its point is moved back onto it (the template from the
     /// anchor aligns to the image); a track in an image that does not show the point is
-    /// refused, and so is one whose alignment would move it beyond `max_shift`.
+    /// refused, and so is one whose alignment would move it beyond `max_shift`; one the
+    /// alignment cannot bring back within its basin is left to the pose (unaligned).
     #[test]
     fn relocate_moves_a_drifted_track_back_onto_its_point_and_refuses_a_wrong_one() {
         let camera = PinholeCamera::new(100.0, 100.0, 80.0, 60.0);
@@ -290,31 +319,30 @@ mod tests {
         let truth = anchor_pixel + Vector2::new(dx, dy);
         let pose = Se3::identity();
         let drifted = truth + Vector2::new(0.6, 0.7);
-        let found = relocate(
-            &camera, &pose, &point, &anchor, &image, drifted, 3.0, 0.8, None,
-        )
-        .unwrap();
+        let at = |image: &GrayImage, track: Vector2<f64>, max_shift: f64| {
+            relocate(
+                &camera, &pose, &point, &anchor, image, track, max_shift, 0.8, None,
+            )
+        };
+        let Relocated::At(found) = at(&image, drifted, 3.0) else {
+            panic!("not aligned");
+        };
         assert!((found - truth).norm() < 0.05, "{found:?} vs {truth:?}");
         // Allowed to move 0.5 px only: refused.
-        assert!(
-            relocate(
-                &camera, &pose, &point, &anchor, &image, drifted, 0.5, 0.8, None
-            )
-            .is_none()
+        assert_eq!(at(&image, drifted, 0.5), Relocated::Refused);
+        // Another pattern where the point was (a checkerboard of 2 px squares over it): the
+        // alignment settles, and the correlation refuses it.
+        let other = GrayImage::from_fn(160, 120, |u, v| {
+            let c = if (u / 2 + v / 2) % 2 == 0 { 70 } else { -70 };
+            (i32::from(image.get(u, v)) + c).clamp(0, 255) as u8
+        });
+        assert_eq!(at(&other, truth, 3.0), Relocated::Refused);
+        // A track 2.5 px off: the alignment leaves its 2 px basin on the way — no evidence
+        // either way, the pose judges the measurement (`MonoExplorer::suspect`).
+        assert_eq!(
+            at(&image, truth + Vector2::new(2.0, 1.5), 3.0),
+            Relocated::Unaligned
         );
-        // Another texture where the point was: no correlation.
-        let other = texture(dx, dy, 1.9);
-        assert!(
-            relocate(
-                &camera, &pose, &point, &anchor, &other, truth, 3.0, 0.8, None
-            )
-            .is_none()
-        );
-        // A track 2.5 px off: the alignment leaves its 2 px basin on the way, and the track is
-        // refused with it (keeping such tracks instead, as no evidence either way, was tried:
-        // bench/README.md, "Verification by evidence").
-        let far = truth + Vector2::new(2.0, 1.5);
-        assert!(relocate(&camera, &pose, &point, &anchor, &image, far, 3.0, 0.8, None).is_none());
         // The camera moved halfway to the point: the point at (60, 50), seen twice as large.
         // The template, magnified from the anchor, aligns there (to 0.15 px: the magnified
         // template is a blurred model of the view); within √2 of scale only
@@ -326,7 +354,7 @@ mod tests {
             texture_at(anchor_pixel.x + 0.5 * x, anchor_pixel.y + 0.5 * y, 0.0)
         });
         let near_drifted = near_truth + Vector2::new(0.6, 0.7);
-        let aligned = relocate(
+        let Relocated::At(aligned) = relocate(
             &camera,
             &nearer,
             &point,
@@ -336,8 +364,9 @@ mod tests {
             3.0,
             0.8,
             None,
-        )
-        .unwrap();
+        ) else {
+            panic!("the magnified template not aligned");
+        };
         assert!((aligned - near_truth).norm() < 0.25, "{aligned:?}");
         assert_eq!(
             relocate(
@@ -351,7 +380,7 @@ mod tests {
                 0.8,
                 Some(2f64.sqrt())
             ),
-            Some(near_drifted)
+            Relocated::At(near_drifted)
         );
     }
 }

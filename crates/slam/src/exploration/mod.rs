@@ -401,6 +401,8 @@ pub struct MonoExplorer {
     temporary: Vec<KeyframeId>,
     /// A keyframe's window is left to the caller ([`MonoExplorer::defer_windows`]).
     defer_windows: bool,
+    /// Tracks whose measurement in the next frame is on probation ([`MonoExplorer::suspect`]).
+    suspects: HashSet<TrackId>,
 }
 
 fn median(values: &mut [f64]) -> Option<f64> {
@@ -436,6 +438,7 @@ impl MonoExplorer {
             localise: false,
             temporary: Vec::new(),
             defer_windows: false,
+            suspects: HashSet::new(),
         }
     }
 
@@ -508,6 +511,22 @@ impl MonoExplorer {
         }
         self.active.insert(track, point);
         true
+    }
+
+    /// Puts `track`'s measurement in the next processed frame on probation: the front-end
+    /// could not confirm that the track still shows its map point (its template did not align
+    /// to the image), nor that it does not. After the frame's motion-only pose the
+    /// measurement keeps its point only if its squared re-projection error is within the χ²
+    /// 95 % gate of two degrees of freedom, `5.99·σ²` (the keyframe BA's outlier gate,
+    /// [`ExplorationConfig::remove_outliers`]); beyond it the association ends — the track goes
+    /// on as a plain corner track, the point can be found again — and the pose is solved again
+    /// without it. A track not on probation is never dropped by its residual between
+    /// keyframes: on a real hand-held sequence the frame's corner tracks are noisier than σ,
+    /// and dropping every measurement beyond the gate (even the 99.9 % one) cuts the map's
+    /// tracks short and loses the camera (7-Scenes: 4.8 cm → 45 cm, bench/README.md,
+    /// "A geometric check for the tracks the template cannot judge").
+    pub fn suspect(&mut self, track: TrackId) {
+        self.suspects.insert(track);
     }
 
     /// Restarts tracking in the existing map at `frame` from `camera_from_world` (a lost
@@ -618,6 +637,8 @@ impl MonoExplorer {
             .filter(|(_, z)| z.iter().all(|v| v.is_finite()))
             .copied()
             .collect();
+        // On probation for this frame only, whatever becomes of it.
+        let suspects = std::mem::take(&mut self.suspects);
         match std::mem::replace(&mut self.state, State::Empty) {
             State::Empty => {
                 self.state = State::Bootstrapping {
@@ -708,7 +729,7 @@ impl MonoExplorer {
                 self.track(
                     &mut graph,
                     frame,
-                    &measurements,
+                    (&measurements, &suspects),
                     last_frame,
                     last_pose,
                     velocity,
@@ -726,7 +747,7 @@ impl MonoExplorer {
         &mut self,
         graph: &mut impl GraphAccess<2>,
         frame: usize,
-        measurements: &[(TrackId, Vector2<f64>)],
+        measurements: (&[(TrackId, Vector2<f64>)], &HashSet<TrackId>),
         last_frame: usize,
         last_pose: Se3,
         velocity: Se3,
@@ -757,11 +778,13 @@ impl MonoExplorer {
         Ok(tracked)
     }
 
+    /// `measurements`: the frame's measurements and the tracks among them on probation
+    /// ([`MonoExplorer::suspect`]).
     fn track_frame(
         &mut self,
         graph: &mut SlamGraph<2>,
         frame: usize,
-        measurements: &[(TrackId, Vector2<f64>)],
+        (measurements, suspects): (&[(TrackId, Vector2<f64>)], &HashSet<TrackId>),
         last_frame: usize,
         last_pose: Se3,
         velocity: Se3,
@@ -772,7 +795,7 @@ impl MonoExplorer {
         if steps > 0.0 {
             predicted = Se3::exp(&(velocity.log() * steps)).compose(&last_pose);
         }
-        let tracked: Vec<(PointId, Vector2<f64>)> = measurements
+        let mut tracked: Vec<(PointId, Vector2<f64>)> = measurements
             .iter()
             .filter_map(|(t, z)| self.active.get(t).map(|&p| (p, *z)))
             .collect();
@@ -782,7 +805,13 @@ impl MonoExplorer {
                 tracked: tracked.len(),
             });
         }
-        let pose = self.motion_only(graph, predicted, &tracked)?;
+        let mut pose = self.motion_only(graph, predicted, &tracked)?;
+        // 1b. The measurements on probation that the pose does not explain leave their points.
+        let dropped = self.drop_unexplained(graph, &pose, measurements, suspects);
+        if !dropped.is_empty() {
+            tracked.retain(|(p, _)| !dropped.contains(p));
+            pose = self.motion_only(graph, pose, &tracked)?;
+        }
         let new_velocity = Se3::exp(&(pose.compose(&last_pose.inverse()).log() / steps));
         // 2. Keyframe decision by the baseline relative to the scene depth.
         let world: Vec<Vector3<f64>> = tracked
@@ -937,6 +966,46 @@ impl MonoExplorer {
         near.into_iter()
             .all(|k| uncovered_by(k).is_some())
             .then_some(reason)
+    }
+
+    /// The map points of the `suspects`' measurements beyond the outlier gate at `pose`
+    /// ([`MonoExplorer::suspect`]), their associations ended — none if that would leave fewer
+    /// than `min_tracked` points tracked (the pose is then no judge of its measurements).
+    fn drop_unexplained(
+        &mut self,
+        graph: &SlamGraph<2>,
+        pose: &Se3,
+        measurements: &[(TrackId, Vector2<f64>)],
+        suspects: &HashSet<TrackId>,
+    ) -> HashSet<PointId> {
+        if suspects.is_empty() {
+            return HashSet::new();
+        }
+        let gate = lsq::chi2_quantile(2, 0.95) * self.config.sigma * self.config.sigma;
+        let unexplained: Vec<(TrackId, PointId)> = measurements
+            .iter()
+            .filter(|(t, _)| suspects.contains(t))
+            .filter_map(|(t, z)| self.active.get(t).map(|&p| (*t, p, *z)))
+            .filter(|(_, p, z)| {
+                graph
+                    .point_world(*p)
+                    .ok()
+                    .and_then(|y| CameraModel::project(&self.camera, &pose.act(&y)).ok())
+                    .is_none_or(|u| (u - z).norm_squared() > gate)
+            })
+            .map(|(t, p, _)| (t, p))
+            .collect();
+        let tracked = measurements
+            .iter()
+            .filter(|(t, _)| self.active.contains_key(t))
+            .count();
+        if tracked - unexplained.len() < self.config.min_tracked {
+            return HashSet::new();
+        }
+        for (t, _) in &unexplained {
+            self.active.remove(t);
+        }
+        unexplained.into_iter().map(|(_, p)| p).collect()
     }
 
     fn motion_only(

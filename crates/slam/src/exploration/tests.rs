@@ -7,8 +7,11 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
+/// Measurements per frame.
+type Frames = Vec<Vec<(TrackId, Vector2<f64>)>>;
+
 /// A simulated camera's true poses and its measurements per frame.
-type Drive = (Vec<Se3>, Vec<Vec<(TrackId, Vector2<f64>)>>);
+type Drive = (Vec<Se3>, Frames);
 
 /// A camera sliding sideways (x) past a box of points 3–6 m ahead, `n` frames 4 cm apart,
 /// measured with Gaussian pixel noise `sigma`: `(truth, measurements per frame)`.
@@ -106,15 +109,11 @@ fn map_reuse(sigma: f64) -> ExplorationConfig {
     }
 }
 
-/// A track that jumps to another corner (15 px off its point from frame 60 on, across the
-/// direction of motion, so no one point explains its measurements before and after): with
-/// outliers removed, after the keyframe BA or the double window, the map keeps only
-/// measurements of the point that agree with it (all within 3σ of its projection); without,
-/// the keyframes keep both and contradict each other.
-#[test]
-fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
+/// [`sideways`] (seed 3, 100 frames, 0.5 px noise) with one track, a point seen from the
+/// first frame to the last, jumping to another corner 15 px off its point (across the
+/// direction of motion) from frame 60 on: the measurements and that track.
+fn jumping_track() -> (Frames, TrackId) {
     let (_, mut frames) = sideways(3, 100, 0.5);
-    // A point seen from the start to the end.
     let track = frames[0]
         .iter()
         .map(|(t, _)| *t)
@@ -127,6 +126,16 @@ fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
             }
         }
     }
+    (frames, track)
+}
+
+/// A track that jumps to another corner ([`jumping_track`]: no one point explains its
+/// measurements before and after): with outliers removed, after the keyframe BA or the double
+/// window, the map keeps only measurements of the point that agree with it (all within 3σ of
+/// its projection); without, the keyframes keep both and contradict each other.
+#[test]
+fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
+    let (frames, track) = jumping_track();
     let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
     let double_window = ExplorationConfig {
         double_window: Some(crate::dwo::DwoParams {
@@ -172,6 +181,51 @@ fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
         } else {
             assert!(worst > 5.0, "{worst} px");
         }
+    }
+}
+
+/// A measurement on probation ([`MonoExplorer::suspect`]) keeps its point where the frame's
+/// pose explains it and loses it in that frame where it does not: the track that jumps 15 px
+/// off its point at frame 60 ([`jumping_track`]), put on probation there with 20 honest
+/// tracks, measures no point
+/// after frame 60, and the honest ones all keep theirs (noise 0.5 px against σ = 1 px). Not on
+/// probation, the jumped track still measures its point after frame 60 (a keyframe's BA
+/// finds it out later).
+#[test]
+fn a_measurement_on_probation_the_pose_does_not_explain_loses_its_point() {
+    let (frames, track) = jumping_track();
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    for probation in [true, false] {
+        let mut explorer = MonoExplorer::new(camera, map_reuse(1.0));
+        let mut graph = SlamGraph::new();
+        let mut honest: Vec<TrackId> = Vec::new();
+        for (f, m) in frames.iter().enumerate().take(61) {
+            if f == 60 {
+                assert!(explorer.active().contains_key(&track));
+                honest = explorer
+                    .active()
+                    .keys()
+                    .copied()
+                    .filter(|t| *t != track)
+                    .collect();
+                honest.sort_unstable();
+                honest.truncate(20);
+                assert_eq!(honest.len(), 20);
+                if probation {
+                    explorer.suspect(track);
+                    honest.iter().for_each(|t| explorer.suspect(*t));
+                }
+            }
+            explorer.process(&mut graph, f, m).unwrap();
+        }
+        let active = explorer.active();
+        assert_eq!(
+            active.contains_key(&track),
+            !probation,
+            "probation {probation}"
+        );
+        let kept = honest.iter().filter(|t| active.contains_key(t)).count();
+        assert_eq!(kept, 20, "probation {probation}");
     }
 }
 

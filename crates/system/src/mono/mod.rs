@@ -43,8 +43,8 @@ use crate::place_recognition::KeyframeFeatures;
 use crate::place_recognition::features::extract as extract_features;
 use crate::result::{Relocalisation, RunGraph, SystemError};
 use crate::search::{
-    CORNER_CELL_PX, PATCH_MARGIN_PX, SAME_CORNER_PX, SearchPoint, SearchScratch, predict, relocate,
-    search, view_angle,
+    CORNER_CELL_PX, PATCH_MARGIN_PX, Relocated, SAME_CORNER_PX, SearchPoint, SearchScratch,
+    predict, relocate, search, view_angle,
 };
 use crate::session::{Finished, Found, Sensor, Step, StepState};
 use crate::tracker::TrackerStats;
@@ -578,7 +578,10 @@ impl MonoSensor {
     /// (`mono.verify_tracks`, [`relocate`]): the measurement moves to where the template aligns,
     /// within `tracker.search_radius` of the track, and the track with it; a track that no
     /// longer shows its point leaves the frame's measurements (the exploration then drops the
-    /// association, the track goes on as a plain corner track). Returns how many were dropped.
+    /// association, the track goes on as a plain corner track); one the template cannot judge
+    /// ([`Relocated::Unaligned`]) stays on probation, for the frame's pose to judge
+    /// (`MonoExplorer::suspect`), unless `mono.refuse_unaligned`. Returns how many were
+    /// dropped.
     fn verify(
         &mut self,
         ctx: &Ctx,
@@ -600,8 +603,10 @@ impl MonoSensor {
         let active = explorer.active();
         let (radius, min_ncc) = (ctx.config.tracker.search_radius, ctx.config.tracker.min_ncc);
         let max_scale = ctx.config.mono.verify_within_scale;
+        let refuse_unaligned = ctx.config.mono.refuse_unaligned;
         let before = measurements.len();
         let mut moved: Vec<(TrackId, [f32; 2])> = Vec::new();
+        let mut suspects: Vec<TrackId> = Vec::new();
         measurements.retain_mut(|(track, z)| {
             let Some(&p) = active.get(track) else {
                 return true;
@@ -623,16 +628,25 @@ impl MonoSensor {
                 min_ncc,
                 max_scale,
             ) {
-                Some(u) => {
+                Relocated::At(u) => {
                     *z = u;
                     moved.push((*track, [u.x as f32, u.y as f32]));
                     true
                 }
-                None => false,
+                Relocated::Unaligned if !refuse_unaligned => {
+                    suspects.push(*track);
+                    true
+                }
+                Relocated::Unaligned => false,
+                Relocated::Refused => false,
             }
         });
+        drop((graph, store));
         for (track, p) in moved {
             self.tracks.correct(track, p);
+        }
+        if let Some(explorer) = self.explorer.as_mut() {
+            suspects.into_iter().for_each(|t| explorer.suspect(t));
         }
         before - measurements.len()
     }
