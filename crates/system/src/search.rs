@@ -206,9 +206,9 @@ pub enum Relocated {
     /// The alignment did not settle within its 2 px basin around the track (or the template
     /// has no gradient to align by, or the patch left the image): no evidence either way —
     /// a far view's template magnified into a smooth blob, motion blur, a corner that changed
-    /// its look. Refusing these cut a drive's tracks to a few frames (KITTI 04: a fifth of
-    /// the checks); the caller keeps the measurement on probation, for the pose to judge
-    /// (`slam::exploration::MonoExplorer::suspect`).
+    /// its look. Refusing these cuts a drive's tracks to a few frames (KITTI 04: a fifth of
+    /// the checks); the caller may keep the measurement on probation, for the pose to judge
+    /// (`mono.refuse_unaligned`, `slam::exploration::MonoExplorer::suspect`).
     Unaligned,
     /// Evidence that the track left its point: the template aligned farther than
     /// `max_shift` from it or does not correlate with the image there (or cannot be warped

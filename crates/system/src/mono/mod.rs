@@ -579,9 +579,9 @@ impl MonoSensor {
     /// within `tracker.search_radius` of the track, and the track with it; a track that no
     /// longer shows its point leaves the frame's measurements (the exploration then drops the
     /// association, the track goes on as a plain corner track); one the template cannot judge
-    /// ([`Relocated::Unaligned`]) stays on probation, for the frame's pose to judge
-    /// (`MonoExplorer::suspect`), unless `mono.refuse_unaligned`. Returns how many were
-    /// dropped.
+    /// ([`Relocated::Unaligned`]) leaves too with `mono.refuse_unaligned` (the default), else
+    /// it stays on probation for the frame's pose to judge (`MonoExplorer::suspect`). Returns
+    /// how many were dropped.
     fn verify(
         &mut self,
         ctx: &Ctx,
