@@ -524,7 +524,7 @@ impl MonoExplorer {
     /// keyframes: on a real hand-held sequence the frame's corner tracks are noisier than σ,
     /// and dropping every measurement beyond the gate (even the 99.9 % one) cuts the map's
     /// tracks short and loses the camera (7-Scenes: 4.8 cm → 45 cm, bench/README.md,
-    /// "A geometric check for the tracks the template cannot judge").
+    /// "Tracks the template cannot judge").
     pub fn suspect(&mut self, track: TrackId) {
         self.suspects.insert(track);
     }

@@ -187,10 +187,9 @@ fn a_track_that_jumps_off_its_point_leaves_no_contradiction_in_the_map() {
 /// A measurement on probation ([`MonoExplorer::suspect`]) keeps its point where the frame's
 /// pose explains it and loses it in that frame where it does not: the track that jumps 15 px
 /// off its point at frame 60 ([`jumping_track`]), put on probation there with 20 honest
-/// tracks, measures no point
-/// after frame 60, and the honest ones all keep theirs (noise 0.5 px against σ = 1 px). Not on
-/// probation, the jumped track still measures its point after frame 60 (a keyframe's BA
-/// finds it out later).
+/// tracks, measures no point after frame 60, and the honest ones all keep theirs (noise
+/// 0.5 px against σ = 1 px). Not on probation, the jumped track still measures its point
+/// after frame 60 (a keyframe's BA finds it out later).
 #[test]
 fn a_measurement_on_probation_the_pose_does_not_explain_loses_its_point() {
     let (frames, track) = jumping_track();
