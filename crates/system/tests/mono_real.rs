@@ -351,14 +351,6 @@ fn a_purely_rotating_camera_is_never_initialised_and_says_why() {
     );
 }
 
-/// A camera lost in a mapped place is relocalised in the same map (P3P against a keyframe's
-/// points, then the guided search around that pose): 7-Scenes with frames 301–399 cut, as a
-/// camera that looks away for three seconds. The tracks cannot follow across the cut, so
-/// tracking is lost; the frames after it are tried against the keyframe database until one
-/// shows a mapped place, and from there the camera tracks on in the first map — no new map,
-/// and its poses after the loss agree with the ground truth under the similarity of its poses
-/// before it (a new map would have a frame and a scale of its own) about as well as those of
-/// a camera never lost (the same frames without the cut) do.
 /// 7-Scenes (`None` without the data) and a monocular system for it with `config` and the
 /// shipped vocabulary, made by the returned function.
 fn seven_scenes_with_loops() -> Option<(Sequence, impl Fn(SystemConfig) -> System)> {
@@ -370,14 +362,33 @@ fn seven_scenes_with_loops() -> Option<(Sequence, impl Fn(SystemConfig) -> Syste
     Some((sequence, system))
 }
 
+/// A camera lost in a mapped place is relocalised in the same map (P3P against a keyframe's
+/// points, then the guided search around that pose): 7-Scenes with frames 301–399 cut, as a
+/// camera that looks away for three seconds. The tracks cannot follow across the cut, so
+/// tracking is lost; the frames after it are tried against the keyframe database until one
+/// shows a mapped place, and from there the camera tracks on in the first map — no new map,
+/// and its poses after the loss agree with the ground truth under the similarity of its poses
+/// before it (a new map would have a frame and a scale of its own) about as well as those of
+/// a camera never lost (the same frames without the cut) do.
+/// Two feature seeds (`mono.seed` 0 and 3): one run of a monocular sequence is one draw of a
+/// chaotic estimate, and a bound met by one draw can be met by chance.
 #[test]
 fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
+    for seed in [0, 3] {
+        relocalised_after_a_loss(seed);
+    }
+}
+
+/// [`a_lost_camera_is_relocalised_in_its_map_by_p3p`] with feature seed `seed`.
+fn relocalised_after_a_loss(seed: u64) {
     let Some((sequence, new_system)) = seven_scenes_with_loops() else {
         return;
     };
     let mut truth = std::collections::HashMap::new();
+    let mut config = SystemConfig::default();
+    config.mono.seed = seed;
     let mut run = |indices: &[usize]| {
-        let mut system = new_system(SystemConfig::default());
+        let mut system = new_system(config.clone());
         for &k in indices {
             let frame = sequence.read(k).unwrap().unwrap();
             truth.insert(k, frame.world_from_camera.expect("ground truth"));
@@ -426,8 +437,8 @@ fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
     let (before, n, relocalised) = after_loss(&r, first.frame);
     let (_, n_never, never) = after_loss(&never_lost, first.frame);
     println!(
-        "before the loss: ATE {:.2} cm; from frame {} on, under the same similarity: {:.2} cm \
-         over {n} frames (never lost: {:.2} cm over {n_never})",
+        "seed {seed}: before the loss: ATE {:.2} cm; from frame {} on, under the same \
+         similarity: {:.2} cm over {n} frames (never lost: {:.2} cm over {n_never})",
         before * 100.0,
         first.frame,
         relocalised * 100.0,
@@ -440,7 +451,7 @@ fn a_lost_camera_is_relocalised_in_its_map_by_p3p() {
     );
     assert!(
         relocalised <= 1.5 * never + 0.01,
-        "{relocalised} m, never lost {never} m"
+        "seed {seed}: {relocalised} m, never lost {never} m"
     );
 }
 

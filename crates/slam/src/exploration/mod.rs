@@ -515,12 +515,13 @@ impl MonoExplorer {
 
     /// Puts `track`'s measurement in the next processed frame on probation: the front-end
     /// could not confirm that the track still shows its map point (its template did not align
-    /// to the image), nor that it does not. After the frame's motion-only pose the
-    /// measurement keeps its point only if its squared re-projection error is within the χ²
+    /// to the image), nor that it does not. The measurement keeps its point only if its
+    /// squared re-projection error at the motion-only pose of the frame's other measurements
+    /// (or of all of them, where fewer than `min_tracked` others are left) is within the χ²
     /// 95 % gate of two degrees of freedom, `5.99·σ²` (the keyframe BA's outlier gate,
     /// [`ExplorationConfig::remove_outliers`]); beyond it the association ends — the track goes
-    /// on as a plain corner track, the point can be found again — and the pose is solved again
-    /// without it. A track not on probation is never dropped by its residual between
+    /// on as a plain corner track, the point can be found again. The frame's pose is then
+    /// solved with every measurement that kept its point. A track not on probation is never dropped by its residual between
     /// keyframes: on a real hand-held sequence the frame's corner tracks are noisier than σ,
     /// and dropping every measurement beyond the gate (even the 99.9 % one) cuts the map's
     /// tracks short and loses the camera (7-Scenes: 4.8 cm → 45 cm, bench/README.md,
@@ -805,13 +806,30 @@ impl MonoExplorer {
                 tracked: tracked.len(),
             });
         }
-        let mut pose = self.motion_only(graph, predicted, &tracked)?;
         // 1b. The measurements on probation that the pose does not explain leave their points.
-        let dropped = self.drop_unexplained(graph, &pose, measurements, suspects);
-        if !dropped.is_empty() {
-            tracked.retain(|(p, _)| !dropped.contains(p));
-            pose = self.motion_only(graph, pose, &tracked)?;
-        }
+        // The judge is the pose of the trusted measurements when there are enough of them: a
+        // pose solved with the suspects in it is pulled by the wrong ones, which then pass
+        // its gate (after a relocalisation, when many templates do not align, they are a
+        // large share). The explained suspects then count in the pose like the others.
+        let trusted: Vec<(PointId, Vector2<f64>)> = measurements
+            .iter()
+            .filter(|(t, _)| !suspects.contains(t))
+            .filter_map(|(t, z)| self.active.get(t).map(|&p| (p, *z)))
+            .collect();
+        let judged_by_trusted =
+            trusted.len() < tracked.len() && trusted.len() >= self.config.min_tracked;
+        let judge = if judged_by_trusted {
+            self.motion_only(graph, predicted, &trusted)?
+        } else {
+            self.motion_only(graph, predicted, &tracked)?
+        };
+        let dropped = self.drop_unexplained(graph, &judge, (measurements, suspects), tracked.len());
+        tracked.retain(|(p, _)| !dropped.contains(p));
+        let pose = if judged_by_trusted || !dropped.is_empty() {
+            self.motion_only(graph, judge, &tracked)?
+        } else {
+            judge
+        };
         let new_velocity = Se3::exp(&(pose.compose(&last_pose.inverse()).log() / steps));
         // 2. Keyframe decision by the baseline relative to the scene depth.
         let world: Vec<Vector3<f64>> = tracked
@@ -970,13 +988,14 @@ impl MonoExplorer {
 
     /// The map points of the `suspects`' measurements beyond the outlier gate at `pose`
     /// ([`MonoExplorer::suspect`]), their associations ended — none if that would leave fewer
-    /// than `min_tracked` points tracked (the pose is then no judge of its measurements).
+    /// than `min_tracked` of the frame's `tracked` points (the pose is then no judge of its
+    /// measurements).
     fn drop_unexplained(
         &mut self,
         graph: &SlamGraph<2>,
         pose: &Se3,
-        measurements: &[(TrackId, Vector2<f64>)],
-        suspects: &HashSet<TrackId>,
+        (measurements, suspects): (&[(TrackId, Vector2<f64>)], &HashSet<TrackId>),
+        tracked: usize,
     ) -> HashSet<PointId> {
         if suspects.is_empty() {
             return HashSet::new();
@@ -995,10 +1014,6 @@ impl MonoExplorer {
             })
             .map(|(t, p, _)| (t, p))
             .collect();
-        let tracked = measurements
-            .iter()
-            .filter(|(t, _)| self.active.contains_key(t))
-            .count();
         if tracked - unexplained.len() < self.config.min_tracked {
             return HashSet::new();
         }

@@ -228,6 +228,39 @@ fn a_measurement_on_probation_the_pose_does_not_explain_loses_its_point() {
     }
 }
 
+/// The measurements on probation are judged by the pose of the trusted ones: at frame 60 of
+/// [`sideways`] every tracked point but 20 is on probation and all of those but 20 more are
+/// measured 6 px off (as if a majority had jumped together — a pose solved with them in it
+/// would turn to explain them and refuse the honest ones). Every jumped measurement loses its
+/// point in that frame; the 20 trusted and the 20 honest measurements on probation keep theirs.
+#[test]
+fn measurements_on_probation_are_judged_by_the_pose_of_the_trusted_ones() {
+    let (_, mut frames) = sideways(3, 100, 0.5);
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let mut explorer = MonoExplorer::new(camera, map_reuse(1.0));
+    let mut graph = SlamGraph::new();
+    for (f, m) in frames.iter().enumerate().take(60) {
+        explorer.process(&mut graph, f, m).unwrap();
+    }
+    let mut tracked: Vec<TrackId> = explorer.active().keys().copied().collect();
+    tracked.sort_unstable();
+    assert!(tracked.len() >= 100, "{} points tracked", tracked.len());
+    let (trusted, suspects) = tracked.split_at(20);
+    let (honest, jumped) = suspects.split_at(20);
+    suspects.iter().for_each(|t| explorer.suspect(*t));
+    for (t, z) in frames[60].iter_mut() {
+        if jumped.contains(t) {
+            z.y += 6.0;
+        }
+    }
+    explorer.process(&mut graph, 60, &frames[60]).unwrap();
+    let active = explorer.active();
+    let kept = |ts: &[TrackId]| ts.iter().filter(|t| active.contains_key(t)).count();
+    assert_eq!(kept(jumped), 0, "of {} jumped", jumped.len());
+    assert_eq!(kept(honest), 20);
+    assert_eq!(kept(trusted), 20);
+}
+
 /// A camera lost for ten frames, whose tracks all die, found again by P3P RANSAC against
 /// the map's points (`geom::pnp`) and relocalised there: it tracks on in the same map with
 /// new tracks (associated with the points they see), and after the gap it is where the

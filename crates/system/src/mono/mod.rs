@@ -579,8 +579,8 @@ impl MonoSensor {
     /// within `tracker.search_radius` of the track, and the track with it; a track that no
     /// longer shows its point leaves the frame's measurements (the exploration then drops the
     /// association, the track goes on as a plain corner track); one the template cannot judge
-    /// ([`Relocated::Unaligned`]) leaves too with `mono.refuse_unaligned` (the default), else
-    /// it stays on probation for the frame's pose to judge (`MonoExplorer::suspect`). Returns
+    /// ([`Relocated::Unaligned`]) stays on probation for the frame's pose to judge
+    /// (`MonoExplorer::suspect`), or leaves too with `mono.refuse_unaligned`. Returns
     /// how many were dropped.
     fn verify(
         &mut self,
@@ -637,8 +637,7 @@ impl MonoSensor {
                     suspects.push(*track);
                     true
                 }
-                Relocated::Unaligned => false,
-                Relocated::Refused => false,
+                Relocated::Unaligned | Relocated::Refused => false,
             }
         });
         drop((graph, store));
