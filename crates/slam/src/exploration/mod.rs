@@ -521,11 +521,11 @@ impl MonoExplorer {
     /// 95 % gate of two degrees of freedom, `5.99·σ²` (the keyframe BA's outlier gate,
     /// [`ExplorationConfig::remove_outliers`]); beyond it the association ends — the track goes
     /// on as a plain corner track, the point can be found again. The frame's pose is then
-    /// solved with every measurement that kept its point. A track not on probation is never dropped by its residual between
-    /// keyframes: on a real hand-held sequence the frame's corner tracks are noisier than σ,
-    /// and dropping every measurement beyond the gate (even the 99.9 % one) cuts the map's
-    /// tracks short and loses the camera (7-Scenes: 4.8 cm → 45 cm, bench/README.md,
-    /// "Tracks the template cannot judge").
+    /// solved with every measurement that kept its point. A track not on probation is never
+    /// dropped by its residual between keyframes: on a real hand-held sequence the frame's
+    /// corner tracks are noisier than σ, and dropping every measurement beyond the gate (even
+    /// the 99.9 % one) cuts the map's tracks short and loses the camera (7-Scenes: 4.8 cm →
+    /// 45 cm, bench/README.md, "Tracks the template cannot judge").
     pub fn suspect(&mut self, track: TrackId) {
         self.suspects.insert(track);
     }
@@ -811,21 +811,19 @@ impl MonoExplorer {
         // pose solved with the suspects in it is pulled by the wrong ones, which then pass
         // its gate (after a relocalisation, when many templates do not align, they are a
         // large share). The explained suspects then count in the pose like the others.
-        let trusted: Vec<(PointId, Vector2<f64>)> = measurements
-            .iter()
-            .filter(|(t, _)| !suspects.contains(t))
-            .filter_map(|(t, z)| self.active.get(t).map(|&p| (p, *z)))
-            .collect();
-        let judged_by_trusted =
-            trusted.len() < tracked.len() && trusted.len() >= self.config.min_tracked;
-        let judge = if judged_by_trusted {
-            self.motion_only(graph, predicted, &trusted)?
-        } else {
-            self.motion_only(graph, predicted, &tracked)?
-        };
+        let trusted: Option<Vec<(PointId, Vector2<f64>)>> = (!suspects.is_empty())
+            .then(|| {
+                measurements
+                    .iter()
+                    .filter(|(t, _)| !suspects.contains(t))
+                    .filter_map(|(t, z)| self.active.get(t).map(|&p| (p, *z)))
+                    .collect::<Vec<_>>()
+            })
+            .filter(|t| t.len() < tracked.len() && t.len() >= self.config.min_tracked);
+        let judge = self.motion_only(graph, predicted, trusted.as_deref().unwrap_or(&tracked))?;
         let dropped = self.drop_unexplained(graph, &judge, (measurements, suspects), tracked.len());
         tracked.retain(|(p, _)| !dropped.contains(p));
-        let pose = if judged_by_trusted || !dropped.is_empty() {
+        let pose = if trusted.is_some() || !dropped.is_empty() {
             self.motion_only(graph, judge, &tracked)?
         } else {
             judge
