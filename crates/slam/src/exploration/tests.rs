@@ -26,15 +26,29 @@ fn sideways(seed: u64, n: usize, sigma: f64) -> Drive {
             )
         })
         .collect();
-    moving(&mut rng, &points, Vector3::new(0.04, 0.0, 0.0), n, sigma)
+    moving(
+        &mut rng,
+        &points,
+        Vector3::new(0.04, 0.0, 0.0),
+        n,
+        sigma,
+        f64::INFINITY,
+    )
 }
 
 /// A camera driving forward (z) down a street 12 m wide between walls of points from 5 m
 /// ahead to 40 m beyond the end of the drive, `n` frames 50 cm apart.
 fn forward(seed: u64, n: usize, sigma: f64) -> Drive {
+    street(seed, n, sigma, 3000, f64::INFINITY)
+}
+
+/// [`forward`] with `count` points, each tracked only within `range` metres of the camera (a
+/// corner tracker finds a façade's corners only once they are near enough): new tracks appear
+/// ahead as the camera drives.
+fn street(seed: u64, n: usize, sigma: f64, count: usize, range: f64) -> Drive {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let end = 0.5 * n as f64 + 40.0;
-    let points: Vec<Vector3<f64>> = (0..3000)
+    let points: Vec<Vector3<f64>> = (0..count)
         .map(|_| {
             let side = if rng.random_bool(0.5) { -6.0 } else { 6.0 };
             Vector3::new(
@@ -44,17 +58,26 @@ fn forward(seed: u64, n: usize, sigma: f64) -> Drive {
             )
         })
         .collect();
-    moving(&mut rng, &points, Vector3::new(0.0, 0.0, 0.5), n, sigma)
+    moving(
+        &mut rng,
+        &points,
+        Vector3::new(0.0, 0.0, 0.5),
+        n,
+        sigma,
+        range,
+    )
 }
 
 /// `points` measured with Gaussian pixel noise `sigma` by a camera whose centre moves by
-/// `step` a frame for `n` frames (identity rotation).
+/// `step` a frame for `n` frames (identity rotation), each where it is within `range` of the
+/// camera's depth.
 fn moving(
     rng: &mut ChaCha8Rng,
     points: &[Vector3<f64>],
     step: Vector3<f64>,
     n: usize,
     sigma: f64,
+    range: f64,
 ) -> Drive {
     let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
     let noise = Normal::new(0.0, sigma).unwrap();
@@ -68,7 +91,11 @@ fn moving(
                 .iter()
                 .enumerate()
                 .filter_map(|(j, p)| {
-                    let z = CameraModel::project(&camera, &t.act(p)).ok()?;
+                    let y = t.act(p);
+                    if y.z > range {
+                        return None;
+                    }
+                    let z = CameraModel::project(&camera, &y).ok()?;
                     (z.x >= 0.0 && z.x < 640.0 && z.y >= 0.0 && z.y < 480.0).then(|| {
                         (
                             j as TrackId,
@@ -483,6 +510,78 @@ fn keyframes_by_parallax_are_sparser_only_for_forward_motion() {
     for e in [side_d_err, side_p_err, ahead_d_err, ahead_p_err] {
         assert!(e < 0.02, "{e}");
     }
+}
+
+/// A feature's history ([`ExplorationConfig::feature_history`]) on a forward drive: a feature
+/// started in a keyframe takes in its track's first measurement since the keyframe before, so
+/// the points a keyframe makes are measured in the keyframe before too (their anchors' elder
+/// neighbours), the filters converge sooner (fewer run at a time), the frames measure more map
+/// points, and the path is recovered as well.
+#[test]
+fn features_take_in_their_tracks_measurements_since_the_last_keyframe() {
+    let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0);
+    let (truth, frames) = street(7, 80, 0.5, 1000, 25.0);
+    let run = |feature_history| {
+        let mut explorer = MonoExplorer::new(
+            camera,
+            ExplorationConfig {
+                feature_history,
+                ..map_reuse(0.5)
+            },
+        );
+        let mut graph = SlamGraph::new();
+        let (mut tracked, mut filters) = (Vec::new(), Vec::new());
+        for (f, m) in frames.iter().enumerate() {
+            let o = explorer
+                .process(&mut graph, f, m)
+                .unwrap_or_else(|e| panic!("frame {f}: {e}"));
+            if o.camera_from_world.is_some() {
+                tracked.push(o.tracked as f64);
+                filters.push(o.filters as f64);
+            }
+        }
+        // Points measured in a keyframe older than their anchor.
+        let elder = graph
+            .points()
+            .filter(|(_, pt)| pt.observers().iter().any(|&k| k < pt.anchor()))
+            .count();
+        let poses = explorer.frame_poses(&graph);
+        let c = |t: &Se3| t.inverse().act(&Vector3::zeros());
+        let (e0, g0) = (c(&poses[0].1), c(&truth[poses[0].0]));
+        let (last, t_last) = poses.last().unwrap();
+        let scale = (c(&truth[*last]) - g0).norm() / (c(t_last) - e0).norm();
+        let error = poses
+            .iter()
+            .map(|(f, t)| ((c(t) - e0) * scale - (c(&truth[*f]) - g0)).norm())
+            .fold(0.0, f64::max)
+            / (c(&truth[*last]) - g0).norm();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        (elder, mean(&tracked), mean(&filters), error)
+    };
+    let (elder_without, tracked_without, filters_without, error_without) = run(false);
+    let (elder_with, tracked_with, filters_with, error_with) = run(true);
+    println!(
+        "points measured before their anchor {elder_without} / {elder_with}, map points per \
+         frame {tracked_without:.1} / {tracked_with:.1}, filters {filters_without:.1} / \
+         {filters_with:.1}, worst error {error_without:.4} / {error_with:.4} of the path \
+         (without / with the history)"
+    );
+    assert_eq!(elder_without, 0);
+    assert!(elder_with >= 100, "{elder_with}");
+    // The filters converge sooner: fewer run at a time, and the map points they become are
+    // measured sooner.
+    assert!(
+        filters_with <= 0.75 * filters_without,
+        "{filters_with} {filters_without}"
+    );
+    assert!(
+        tracked_with > tracked_without,
+        "{tracked_with} {tracked_without}"
+    );
+    assert!(
+        error_with < 0.02 && error_without < 0.02,
+        "{error_with} {error_without}"
+    );
 }
 
 /// A correction that rescales the whole map by `a` (every keyframe `S ← S·diag(1/a)`, the

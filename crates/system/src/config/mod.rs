@@ -131,6 +131,18 @@ pub struct MonoConfig {
     /// the courtyard's loop never closed; bench/README.md, "Monocular defaults over five
     /// seeds").
     pub keyframe_parallax: bool,
+    /// A feature started in a keyframe also takes in its corner track's first measurement
+    /// since the keyframe before (`slam::exploration::ExplorationConfig::feature_history`):
+    /// its filter starts with the parallax the track gathered before the keyframe (issue 42's
+    /// "new points made early enough on fast forward motion"). Off: it helps the drives and
+    /// costs the rooms. Medians of six `seed`s, Sim(3) ATE live / after the run, cm, against
+    /// off: KITTI 04 92.3 / 93.2 against 110.9 / 111.2, KITTI 06 snippet 3.53 / 2.61 against
+    /// 3.97 / 3.13, courtyard 8.42 / 7.08 against 9.27 / 7.57; but 7-Scenes 4.22 / 4.09
+    /// against 4.04 / 3.91, the rendered room 1.41 / 1.38 against 0.74, the building 81.6 /
+    /// 12.4 against 63.0 / 16.0, the town (three seeds) 256 / 144 against 136 / 52. With
+    /// `keyframe_parallax` it does not bring the KITTI 06 snippet back (7.49 / 7.75 cm with 12
+    /// keyframes; bench/README.md, "A feature's history").
+    pub feature_history: bool,
     /// The bootstrap waits for the parallax at which a typical point's relative depth error
     /// is at most this (0.1: `θ ≥ √2·σ/(f·ε)`, 1.5° at f = 525 px, σ = 1 px).
     pub bootstrap_depth_error: f64,
@@ -337,6 +349,7 @@ impl Default for MonoConfig {
             window: 10,
             keyframe_distance: 0.05,
             keyframe_parallax: false,
+            feature_history: false,
             bootstrap_depth_error: 0.1,
             feature_depth_error: 0.1,
             bootstrap_min_sigma: 0.25,

@@ -76,6 +76,7 @@ impl SystemConfig {
             local_window: LocalWindow::Covisible,
             fixed_observers: m.fixed_observers,
             remove_outliers: true,
+            feature_history: m.feature_history,
             // The stereo system's keyframe criterion of coverage, with the mono distance, and
             // its fraction of points found.
             keyframe_rotation: Some(self.keyframes.rotation_deg.to_radians()),
